@@ -1,0 +1,1 @@
+"""Sub-commands of ``uavcal``; each module has ``register(subparsers)``."""

@@ -1,0 +1,1 @@
+"""Readers for real recordings (EuRoC ASL, TUM, ROS bags) and training windows."""

@@ -1,0 +1,1 @@
+"""Shared geometry: SO(3)/SE(3) helpers, camera model, triangulation."""

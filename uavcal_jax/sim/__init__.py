@@ -1,0 +1,1 @@
+"""Flight simulator: trajectories, IMU synthesis, rendering, EuRoC ASL output."""
