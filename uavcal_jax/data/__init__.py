@@ -1,1 +1,41 @@
 """Readers for real recordings (EuRoC ASL, TUM, ROS bags) and training windows."""
+
+from uavcal_jax.data.euroc import (
+    camera_calibration_from_yaml,
+    imu_calibration_from_yaml,
+    load_depth,
+    load_image,
+    read_euroc,
+    read_ground_truth_csv,
+    read_sensor_yaml,
+)
+from uavcal_jax.data.sequence import (
+    CameraCalibration,
+    FrameStream,
+    GroundTruth,
+    ImuCalibration,
+    ImuData,
+    Sequence,
+)
+from uavcal_jax.data.targets import TargetLabels, read_target_labels, write_target_labels
+from uavcal_jax.data.yaml_io import read_opencv_yaml
+
+__all__ = [
+    "CameraCalibration",
+    "FrameStream",
+    "GroundTruth",
+    "ImuCalibration",
+    "ImuData",
+    "Sequence",
+    "TargetLabels",
+    "camera_calibration_from_yaml",
+    "imu_calibration_from_yaml",
+    "load_depth",
+    "load_image",
+    "read_euroc",
+    "read_ground_truth_csv",
+    "read_opencv_yaml",
+    "read_sensor_yaml",
+    "read_target_labels",
+    "write_target_labels",
+]
