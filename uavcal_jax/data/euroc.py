@@ -276,10 +276,11 @@ def _require(data: dict, key: str, path: Path | None) -> Any:
 
 
 def _floats(data: dict, key: str, n: int, path: Path | None) -> np.ndarray:
+    value = _require(data, key, path)
     try:
-        arr = np.asarray(_require(data, key, path), dtype=np.float64).ravel()
+        arr = np.asarray(value, dtype=np.float64).ravel()
     except (TypeError, ValueError):
-        raise DataError(f"{key}: expected {n} numbers, got {data[key]!r}", path) from None
+        raise DataError(f"{key}: expected {n} numbers, got {value!r}", path) from None
     if arr.shape != (n,) or not np.all(np.isfinite(arr)):
         raise DataError(f"{key}: expected {n} finite numbers, got {data[key]!r}", path)
     return arr
