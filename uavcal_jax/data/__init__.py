@@ -18,6 +18,7 @@ from uavcal_jax.data.sequence import (
     Sequence,
 )
 from uavcal_jax.data.targets import TargetLabels, read_target_labels, write_target_labels
+from uavcal_jax.data.tum import read_tum, write_tum
 from uavcal_jax.data.yaml_io import read_opencv_yaml
 
 __all__ = [
@@ -37,5 +38,7 @@ __all__ = [
     "read_opencv_yaml",
     "read_sensor_yaml",
     "read_target_labels",
+    "read_tum",
     "write_target_labels",
+    "write_tum",
 ]
