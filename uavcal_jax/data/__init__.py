@@ -9,6 +9,7 @@ from uavcal_jax.data.euroc import (
     read_ground_truth_csv,
     read_sensor_yaml,
 )
+from uavcal_jax.data.rosbag import read_rosbag
 from uavcal_jax.data.sequence import (
     CameraCalibration,
     FrameStream,
@@ -36,6 +37,7 @@ __all__ = [
     "read_euroc",
     "read_ground_truth_csv",
     "read_opencv_yaml",
+    "read_rosbag",
     "read_sensor_yaml",
     "read_target_labels",
     "read_tum",
