@@ -20,6 +20,7 @@ from uavcal_jax.data.sequence import (
 )
 from uavcal_jax.data.targets import TargetLabels, read_target_labels, write_target_labels
 from uavcal_jax.data.tum import read_tum, write_tum
+from uavcal_jax.data.windows import WindowConfig, WindowSet, load_frames, make_windows
 from uavcal_jax.data.yaml_io import read_opencv_yaml
 
 __all__ = [
@@ -30,10 +31,14 @@ __all__ = [
     "ImuData",
     "Sequence",
     "TargetLabels",
+    "WindowConfig",
+    "WindowSet",
     "camera_calibration_from_yaml",
     "imu_calibration_from_yaml",
     "load_depth",
+    "load_frames",
     "load_image",
+    "make_windows",
     "read_euroc",
     "read_ground_truth_csv",
     "read_opencv_yaml",

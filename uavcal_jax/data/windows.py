@@ -1,0 +1,301 @@
+"""Fixed-duration training windows over one sequence's frames and IMU samples.
+
+The calibrator (Avola et al. 2023) reads windows of ``duration`` seconds (10 s) taken every
+``stride`` seconds (1 s); each frame is paired with the IMU sample *nearest in time*.
+
+Memory layout: the camera's frames are loaded and resized **once per sequence** (default
+320x180, ``cv2.INTER_AREA``) into one array ``frames (F, H, W[, 3]) uint8``; a window is a row
+of ``frame_index (n_windows, T) int32`` into it, so overlapping windows share frames instead of
+copying them (1,000 windows of 200 frames with stride 1 s hold each frame once, not 10 times).
+:meth:`WindowSet.window` returns a *view* of ``frames`` when the window is a full run of
+consecutive frames; :meth:`WindowSet.batch` gathers copies, ready for a model.
+
+Window rule (all in integer nanoseconds): the usable span is where the camera and the IMU
+overlap, ``[t_lo, t_hi]``. Window ``k`` starts at ``s_k = t_lo + k * stride`` and holds the
+frames with ``s_k <= t < s_k + duration``; it exists while its last nominal frame time
+``s_k + duration - P`` is at most ``t_hi + P/2`` (``P`` the nominal frame period), so a
+recording of ``N`` frames (``N * P`` seconds) gives ``floor((N * P - duration) / stride) + 1``
+windows (30 s at 20 Hz, 10 s windows, 1 s stride: 21). ``T = frames_per_window`` is
+``round(duration * rate_hz)`` (nominal rate from the calibration, else measured), and each
+frame goes to its nominal slot ``round((t - s_k) / P)`` (if clock jitter puts two frames in one
+slot, the earlier one is kept).
+
+Missing frames (dropped by the camera or by the reader) are **padded**: their slot's
+``frame_index`` is ``-1`` and ``frame_mask`` is ``False``, so the other frames keep their
+place in time; gathers fill such slots with zero pixels, zero IMU values and ``t_ns = -1``.
+Windows with fewer than ``min_valid_fraction * T`` real frames are skipped.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from uavcal_jax.data.sequence import FrameStream, Sequence
+from uavcal_jax.data.timing import measured_rate_hz
+from uavcal_jax.errors import DataError
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """How to cut a sequence into windows.
+
+    Attributes:
+        duration: window length, seconds (paper: 10).
+        stride: offset between window starts, seconds (paper: 1).
+        size: output frame size ``(width, height)`` (default 320x180).
+        camera: which camera stream.
+        color: ``"gray"`` (F, H, W) or ``"rgb"`` (F, H, W, 3).
+        interpolation: OpenCV resize interpolation (``cv2.INTER_AREA``).
+        min_valid_fraction: skip windows with fewer real frames than this fraction of ``T``.
+        workers: threads used to decode frames (``None``: all CPUs).
+    """
+
+    duration: float = 10.0
+    stride: float = 1.0
+    size: tuple[int, int] = (320, 180)
+    camera: str = "cam0"
+    color: str = "gray"
+    interpolation: int = cv2.INTER_AREA
+    min_valid_fraction: float = 0.5
+    workers: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.duration <= 0 or self.stride <= 0:
+            raise ValueError("duration and stride must be positive")
+        if self.color not in ("gray", "rgb"):
+            raise ValueError(f"color must be 'gray' or 'rgb', got {self.color!r}")
+        if len(self.size) != 2 or min(self.size) <= 0:
+            raise ValueError(f"size must be (width, height), got {self.size}")
+
+
+def nearest_index(t_query: np.ndarray, t_ref: np.ndarray) -> np.ndarray:
+    """For each query time, the index of the nearest reference time (ties: the earlier).
+
+    Both arrays int64 (or float); ``t_ref`` sorted ascending and non-empty.
+    """
+    t_query = np.asarray(t_query)
+    t_ref = np.asarray(t_ref)
+    if t_ref.shape[0] == 0:
+        raise ValueError("no reference times")
+    j = np.searchsorted(t_ref, t_query, side="left")
+    j = np.clip(j, 1, max(t_ref.shape[0] - 1, 1))
+    if t_ref.shape[0] == 1:
+        return np.zeros(t_query.shape, dtype=np.int64)
+    before, after = t_ref[j - 1], t_ref[j]
+    pick_before = np.abs(t_query - before) <= np.abs(after - t_query)
+    return np.where(pick_before, j - 1, j).astype(np.int64)
+
+
+def load_frames(stream: FrameStream, indices: np.ndarray | None = None, *,
+                size: tuple[int, int] | None = (320, 180), color: str = "gray",
+                interpolation: int = cv2.INTER_AREA, workers: int | None = None) -> np.ndarray:
+    """Load (and resize) frames of ``stream`` into one uint8 array, decoding in threads.
+
+    Returns (N, H, W) for gray, (N, H, W, 3) for RGB; ``size`` is ``(width, height)`` or
+    ``None`` to keep the stream's own size.
+    """
+    idx = np.arange(len(stream)) if indices is None else np.asarray(indices, dtype=np.int64)
+
+    def one(i: int) -> np.ndarray:
+        img = stream.load(int(i), color)
+        if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+            img = cv2.resize(img, tuple(size), interpolation=interpolation)
+        return img
+
+    if idx.size == 0:
+        w, h = size if size is not None else stream.calibration.resolution
+        return np.zeros((0, h, w) + ((3,) if color == "rgb" else ()), np.uint8)
+    first = one(int(idx[0]))
+    out = np.empty((idx.size, *first.shape), dtype=np.uint8)
+    out[0] = first
+
+    def fill(k: int) -> None:
+        img = one(int(idx[k]))
+        if img.shape != first.shape:
+            raise DataError(f"frame {int(idx[k])} has shape {img.shape}, frame {int(idx[0])} "
+                            f"has {first.shape}", stream.paths[idx[k]] if stream.paths else None)
+        out[k] = img
+
+    n_workers = workers or min(16, os.cpu_count() or 1)
+    if n_workers <= 1 or idx.size < 8:
+        for k in range(1, idx.size):
+            fill(k)
+    else:
+        with ThreadPoolExecutor(n_workers) as pool:
+            list(pool.map(fill, range(1, idx.size)))
+    return out
+
+
+@dataclass(frozen=True)
+class WindowSet:
+    """Windows of one sequence as index arrays into shared per-sequence arrays.
+
+    Attributes:
+        config: the :class:`WindowConfig` used.
+        name: the sequence name.
+        frames: (F, H, W[, 3]) uint8, every used frame once, resized.
+        frame_t_ns: (F,) int64 frame timestamps.
+        imu_index: (F,) int32, nearest IMU sample of each frame.
+        imu_t_ns, gyro, accel: the sequence's IMU arrays, (N,), (N, 3), (N, 3).
+        start_ns: (n_windows,) int64 window start times.
+        frame_index: (n_windows, T) int32 into ``frames``; ``-1`` marks a padded slot.
+        frame_mask: (n_windows, T) bool, ``False`` on padded slots.
+        imu_range: (n_windows, 2) int64 ``[first, stop)`` of all IMU samples inside the window
+            (for consumers that want every sample, e.g. preintegration).
+    """
+
+    config: WindowConfig
+    name: str
+    frames: np.ndarray
+    frame_t_ns: np.ndarray
+    imu_index: np.ndarray
+    imu_t_ns: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    start_ns: np.ndarray
+    frame_index: np.ndarray
+    frame_mask: np.ndarray
+    imu_range: np.ndarray
+    meta: dict = field(default_factory=dict, compare=False)
+
+    def __len__(self) -> int:
+        return int(self.frame_index.shape[0])
+
+    @property
+    def frames_per_window(self) -> int:
+        return int(self.frame_index.shape[1])
+
+    def window(self, i: int) -> dict[str, np.ndarray]:
+        """Arrays of window ``i``: ``frames (T, H, W[, 3])`` uint8 (a view of ``frames`` when
+        the window is a full consecutive run), ``mask (T,)``, ``t_ns (T,)``, ``gyro (T, 3)``,
+        ``accel (T, 3)``, ``imu_t_ns (T,)`` of the nearest IMU samples."""
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"window {i} out of range [0, {len(self)})")
+        idx, mask = self.frame_index[i], self.frame_mask[i]
+        if mask.all() and np.all(np.diff(idx) == 1):
+            frames = self.frames[idx[0]: idx[-1] + 1]
+        else:
+            frames = np.where(_expand(mask, self.frames.ndim), self.frames[np.maximum(idx, 0)],
+                              np.uint8(0))
+        return {"frames": frames, **self._side(idx[None], mask[None], squeeze=True)}
+
+    def batch(self, indices) -> dict[str, np.ndarray]:
+        """Gathered copies for windows ``indices``: ``frames (B, T, H, W[, 3])`` uint8,
+        ``mask (B, T)``, ``t_ns (B, T)``, ``gyro (B, T, 3)``, ``accel (B, T, 3)``,
+        ``imu_t_ns (B, T)``, ``window (B,)``."""
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        idx, mask = self.frame_index[indices], self.frame_mask[indices]
+        frames = self.frames[np.maximum(idx, 0)]
+        frames[~mask] = 0
+        return {"frames": frames, **self._side(idx, mask), "window": indices}
+
+    def _side(self, idx: np.ndarray, mask: np.ndarray, squeeze: bool = False) -> dict:
+        safe = np.maximum(idx, 0)
+        imu = self.imu_index[safe]
+        out = {
+            "mask": mask.copy(),
+            "t_ns": np.where(mask, self.frame_t_ns[safe], -1),
+            "gyro": np.where(mask[..., None], self.gyro[imu], 0.0),
+            "accel": np.where(mask[..., None], self.accel[imu], 0.0),
+            "imu_t_ns": np.where(mask, self.imu_t_ns[imu], -1),
+        }
+        if squeeze:
+            out = {k: v[0] for k, v in out.items()}
+        return out
+
+
+def _expand(mask: np.ndarray, ndim: int) -> np.ndarray:
+    return mask.reshape(mask.shape + (1,) * (ndim - 1))
+
+
+def window_starts(t_lo: int, t_hi: int, duration_ns: int, stride_ns: int,
+                  period_ns: int) -> np.ndarray:
+    """Window start times (see the module docstring's rule)."""
+    span = t_hi + period_ns // 2 - t_lo - (duration_ns - period_ns)
+    if span < 0:
+        return np.zeros(0, np.int64)
+    return t_lo + np.arange(span // stride_ns + 1, dtype=np.int64) * stride_ns
+
+
+def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
+                 frames: np.ndarray | None = None) -> WindowSet:
+    """Cut ``sequence`` into windows (see the module docstring).
+
+    Args:
+        frames: optional pre-loaded frames of the whole camera stream (one per frame, already
+            at ``config.size``); by default they are loaded from the stream.
+
+    Raises:
+        DataError: no IMU, no such camera, or the sequence is shorter than one window.
+    """
+    where = sequence.root if sequence.root is not None else sequence.name
+    if sequence.imu is None or len(sequence.imu) == 0:
+        raise DataError("sequence has no IMU samples; windows need them", where)
+    stream = sequence.camera(config.camera)
+    if len(stream) == 0:
+        raise DataError(f"camera {config.camera!r} has no frames", where)
+    imu = sequence.imu
+    t_cam = np.asarray(stream.t_ns, np.int64)
+    rate = stream.calibration.rate_hz
+    if not (rate and np.isfinite(rate) and rate > 0):
+        rate = measured_rate_hz(t_cam)
+    if not rate:
+        raise DataError(f"camera {config.camera!r}: cannot tell its frame rate", where)
+    period_ns = int(round(1e9 / rate))
+    duration_ns = int(round(config.duration * 1e9))
+    stride_ns = int(round(config.stride * 1e9))
+    T = int(round(config.duration * rate))
+
+    t_lo = max(int(t_cam[0]), int(imu.t_ns[0]))
+    t_hi = min(int(t_cam[-1]), int(imu.t_ns[-1]))
+    starts = window_starts(t_lo, t_hi, duration_ns, stride_ns, period_ns)
+    if starts.size == 0:
+        raise DataError(
+            f"sequence too short for one {config.duration:g} s window: camera and IMU overlap "
+            f"for {(t_hi - t_lo) * 1e-9:.3f} s", where)
+
+    # Frames of each window, [s, s + duration), each in its nominal slot round((t - s) / P).
+    first = np.searchsorted(t_cam, starts, side="left")
+    stop = np.searchsorted(t_cam, starts + duration_ns, side="left")
+    cam_index = np.full((starts.size, T), -1, dtype=np.int64)
+    for w in range(starts.size):
+        idx = np.arange(first[w], stop[w])
+        slots = np.clip(np.rint((t_cam[idx] - starts[w]) / period_ns).astype(np.int64), 0, T - 1)
+        slots, pos = np.unique(slots, return_index=True)  # jitter collisions: first frame wins
+        cam_index[w, slots] = idx[pos]
+    mask = cam_index >= 0
+    keep = mask.sum(axis=1) >= max(1, int(np.ceil(config.min_valid_fraction * T)))
+    starts, cam_index, mask = starts[keep], cam_index[keep], mask[keep]
+    if starts.size == 0:
+        raise DataError(f"no window has at least {config.min_valid_fraction:.0%} of its "
+                        f"{T} frames", where)
+
+    # Frames actually used, loaded once; window rows index into them.
+    used = np.unique(cam_index[mask])
+    if frames is None:
+        frame_arr = load_frames(stream, used, size=config.size, color=config.color,
+                                interpolation=config.interpolation, workers=config.workers)
+    else:
+        if frames.shape[0] != len(stream):
+            raise ValueError(f"frames has {frames.shape[0]} entries, stream has {len(stream)}")
+        frame_arr = np.ascontiguousarray(frames[used])
+    remap = np.full(len(stream), -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    frame_index = np.where(mask, remap[np.maximum(cam_index, 0)], -1)
+
+    frame_t = t_cam[used]
+    imu_index = nearest_index(frame_t, imu.t_ns).astype(np.int32)
+    imu_range = np.stack([np.searchsorted(imu.t_ns, starts, side="left"),
+                          np.searchsorted(imu.t_ns, starts + duration_ns, side="left")], axis=1)
+    return WindowSet(
+        config=config, name=sequence.name, frames=frame_arr, frame_t_ns=frame_t,
+        imu_index=imu_index, imu_t_ns=imu.t_ns, gyro=imu.gyro, accel=imu.accel,
+        start_ns=starts, frame_index=frame_index.astype(np.int32), frame_mask=mask,
+        imu_range=imu_range.astype(np.int64),
+        meta={"camera": config.camera, "rate_hz": rate, "frames_per_window": T},
+    )
