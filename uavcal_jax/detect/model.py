@@ -1,0 +1,50 @@
+"""The detectors: backbone (YZNet or YOLOv5n-like CSP) -> PANet neck -> YOLOv5 Detect head.
+
+``build_detector(config)`` returns a Flax module; ``module.apply(variables, images,
+train=False)`` maps images ``(B, H, W, 3)`` float32 in ``[0, 1]`` to a tuple of three raw
+outputs ``(B, H/s, W/s, 3, 5 + C)`` for s = 8, 16, 32 (logits: x, y, w, h, obj, classes).
+With ``train=True`` pass ``mutable=["batch_stats"]`` to update the BN running statistics.
+"""
+
+from __future__ import annotations
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from uavcal_jax.detect.config import DetectorConfig
+from uavcal_jax.detect.csp import CSPBackbone
+from uavcal_jax.detect.head import DetectHead
+from uavcal_jax.detect.layers import SPPF
+from uavcal_jax.detect.neck import PANNeck
+from uavcal_jax.detect.yznet import TAP_CHANNELS, YZNetBackbone
+
+
+class Detector(nn.Module):
+    config: DetectorConfig
+
+    @nn.compact
+    def __call__(self, images, train: bool = False):
+        cfg = self.config
+        bn = dict(bn_momentum=cfg.bn_momentum, bn_eps=cfg.bn_eps)
+        x = images.astype(jnp.float32)
+        if cfg.model == "yolov5n-like":
+            feats = CSPBackbone(name="backbone", **bn)(x, train)
+        else:
+            c3, c4, c5 = YZNetBackbone(dw_impl=cfg.dw_impl, name="backbone", **bn)(x, train)
+            c5 = SPPF(TAP_CHANNELS[2], 5, name="sppf", **bn)(c5, train)
+            feats = (c3, c4, c5)
+        feats = PANNeck(cfg.widths, cfg.depth, name="neck", **bn)(feats, train)
+        return DetectHead(cfg.num_classes, cfg.strides, cfg.num_anchors, name="head")(feats)
+
+
+def build_detector(config: DetectorConfig) -> Detector:
+    return Detector(config)
+
+
+def init_detector(key: jax.Array, config: DetectorConfig, batch_size: int = 1) -> dict:
+    """``{"params", "batch_stats"}`` for ``config`` (initialised on a zero image batch)."""
+    h, w = config.img_size
+    dummy = jnp.zeros((batch_size, h, w, 3), jnp.float32)
+    variables = jax.jit(lambda k, x: build_detector(config).init(k, x, train=False))(key, dummy)
+    return {"params": variables["params"], "batch_stats": variables["batch_stats"]}
