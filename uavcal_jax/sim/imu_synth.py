@@ -1,0 +1,232 @@
+"""Synthetic IMU from a continuous-time trajectory, with the EuRoC/Kalibr noise model.
+
+Exact (noise-free) measurements at time ``t``, in the body (= IMU) frame::
+
+    gyro  = omega_B(t)                              (body angular velocity)
+    accel = R_WB(t)^T (a_W(t) - g_W),  g_W = (0, 0, -9.81)
+
+so an IMU at rest reads ``R_WB^T (0, 0, +9.81)``: +9.81 m/s^2 on body z when level.
+
+Noise (per axis, independent), the discrete-time form of ``imu0/sensor.yaml``'s continuous
+densities for a sample period ``dt``::
+
+    b_0       ~ N(0, turn_on_sigma^2)                        (constant turn-on bias)
+    b_{k+1}   = b_k + random_walk * sqrt(dt_k) * n_k,   n_k ~ N(0, 1)
+    measured  = exact + b_k + noise_density / sqrt(dt) * m_k,   m_k ~ N(0, 1)
+
+(``dt`` is the nominal period ``1 / rate_hz`` for the white noise and the actual step for
+the bias walk). The true biases ``b_k`` are returned alongside the samples and can be written
+with the ground truth (:func:`ground_truth_from_trajectory`), as EuRoC's
+``state_groundtruth_estimate0`` does.
+
+Randomness: numpy's ``Generator`` (PCG64), seeded with ``numpy.random.SeedSequence(seed)``
+spawned into independent streams for the gyro/accel turn-on biases, bias walks and white
+noise, so the same ``seed`` always gives the same samples (and, e.g., changing the white-noise
+density does not change the bias walk).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavcal_jax.data.sequence import GroundTruth, ImuCalibration, ImuData
+from uavcal_jax.sim.trajectory import GRAVITY, Trajectory, TrajectoryState
+
+__all__ = [
+    "GRAVITY_W",
+    "ImuNoise",
+    "SyntheticImu",
+    "ground_truth_from_trajectory",
+    "ideal_imu",
+    "imu_noise",
+    "imu_timestamps",
+    "synthesize_imu",
+]
+
+#: World gravity vector, m/s^2 (z up).
+GRAVITY_W = np.array([0.0, 0.0, -GRAVITY])
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """Continuous-time IMU noise model (defaults: EuRoC's ADIS16448 ``imu0/sensor.yaml``).
+
+    Attributes:
+        gyro_noise_density: rad/s/sqrt(Hz).
+        gyro_random_walk: rad/s^2/sqrt(Hz).
+        accel_noise_density: m/s^2/sqrt(Hz).
+        accel_random_walk: m/s^3/sqrt(Hz).
+        turn_on_bias_gyro_sigma: rad/s, std of the constant bias drawn at switch-on (the
+            size of the gyro biases EuRoC's ground truth reports, up to ~0.08 rad/s).
+        turn_on_bias_accel_sigma: m/s^2, std of the accelerometer turn-on bias.
+    """
+
+    gyro_noise_density: float = 1.6968e-04
+    gyro_random_walk: float = 1.9393e-05
+    accel_noise_density: float = 2.0e-3
+    accel_random_walk: float = 3.0e-3
+    turn_on_bias_gyro_sigma: float = 0.03
+    turn_on_bias_accel_sigma: float = 0.1
+
+    @classmethod
+    def from_calibration(cls, calibration: ImuCalibration, **overrides) -> ImuNoise:
+        """The densities of an :class:`ImuCalibration` (turn-on sigmas: defaults/overrides)."""
+        values = dict(
+            gyro_noise_density=float(calibration.gyroscope_noise_density),
+            gyro_random_walk=float(calibration.gyroscope_random_walk),
+            accel_noise_density=float(calibration.accelerometer_noise_density),
+            accel_random_walk=float(calibration.accelerometer_random_walk),
+        )
+        values.update(overrides)
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class SyntheticImu:
+    """Synthetic IMU samples and the true biases inside them.
+
+    Attributes:
+        imu: the measurements (``t_ns`` int64, ``gyro``/``accel`` (N, 3)).
+        bias_gyro: (N, 3) rad/s, the gyro bias in each sample (zeros without noise).
+        bias_accel: (N, 3) m/s^2.
+    """
+
+    imu: ImuData
+    bias_gyro: np.ndarray
+    bias_accel: np.ndarray
+
+
+def imu_timestamps(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
+    """int64 ns times ``start_ns + k * round(1e9 / rate_hz)`` within ``[t_start, t_end]``."""
+    if rate_hz <= 0:
+        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    period_ns = int(round(1e9 / rate_hz))
+    start_ns = int(math.ceil(t_start * 1e9 - 1e-3))
+    end_ns = int(math.floor(t_end * 1e9 + 1e-3))
+    if end_ns < start_ns:
+        raise ValueError(f"empty IMU span [{t_start}, {t_end}]")
+    n = (end_ns - start_ns) // period_ns + 1
+    return start_ns + period_ns * np.arange(n, dtype=np.int64)
+
+
+def _measurements(state: TrajectoryState) -> tuple[np.ndarray, np.ndarray]:
+    accel = np.einsum("...ji,...j->...i", state.rotation, state.acceleration - GRAVITY_W)
+    return state.angular_velocity_body, accel
+
+
+def ideal_imu(traj: Trajectory, t) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ``(gyro, accel)`` at times ``t`` (float seconds), each ``t.shape + (3,)``."""
+    return _measurements(traj.state(t))
+
+
+def imu_noise(n: int, dt: float, noise: ImuNoise, seed: int = 0,
+              steps: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Noise alone for ``n`` samples: white noise and bias (turn-on + random walk) per sensor.
+
+    Args:
+        n: number of samples.
+        dt: nominal sample period (seconds) for the white noise.
+        noise: the model.
+        seed: see the module docstring.
+        steps: (n - 1,) actual periods for the bias walk (default: ``dt`` each).
+
+    Returns:
+        ``{"white_gyro", "white_accel", "bias_gyro", "bias_accel"}``, each (n, 3).
+    """
+    ss = np.random.SeedSequence(seed)
+    g_on, a_on, g_walk, a_walk, g_white, a_white = (np.random.default_rng(s)
+                                                     for s in ss.spawn(6))
+    steps = np.full(max(n - 1, 0), dt) if steps is None else np.asarray(steps, dtype=np.float64)
+    sqrt_steps = np.sqrt(steps)[:, None]
+
+    def bias(rng_on, rng_walk, sigma_on, walk):
+        b0 = rng_on.normal(size=(1, 3)) * sigma_on
+        inc = rng_walk.normal(size=(max(n - 1, 0), 3)) * walk * sqrt_steps
+        return b0 + np.concatenate([np.zeros((1, 3)), np.cumsum(inc, axis=0)], axis=0)[:n]
+
+    return {
+        "white_gyro": g_white.normal(size=(n, 3)) * noise.gyro_noise_density / math.sqrt(dt),
+        "white_accel": a_white.normal(size=(n, 3)) * noise.accel_noise_density / math.sqrt(dt),
+        "bias_gyro": bias(g_on, g_walk, noise.turn_on_bias_gyro_sigma, noise.gyro_random_walk),
+        "bias_accel": bias(a_on, a_walk, noise.turn_on_bias_accel_sigma,
+                           noise.accel_random_walk),
+    }
+
+
+def synthesize_imu(traj: Trajectory, rate_hz: float = 200.0, noise: ImuNoise | None = None,
+                   seed: int = 0, t_start: float | None = None, t_end: float | None = None,
+                   *, t_ns: np.ndarray | None = None) -> SyntheticImu:
+    """IMU samples of a trajectory at ``rate_hz`` (or at given times).
+
+    Args:
+        traj: the trajectory.
+        rate_hz: sample rate; samples at ``ceil(t_start in ns) + k * round(1e9 / rate_hz)``.
+        noise: the noise model, or ``None`` for exact measurements (zero biases).
+        seed: noise seed (numpy ``Generator``; see the module docstring).
+        t_start, t_end: span in seconds (default: the trajectory's).
+        t_ns: explicit int64 ns sample times instead of the regular grid (e.g. a real IMU's).
+
+    Returns:
+        :class:`SyntheticImu`.
+    """
+    if t_ns is None:
+        t0 = traj.t_start if t_start is None else float(t_start)
+        t1 = traj.t_end if t_end is None else float(t_end)
+        t_ns = imu_timestamps(t0, t1, rate_hz)
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    if t_ns.ndim != 1 or len(t_ns) == 0 or np.any(np.diff(t_ns) <= 0):
+        raise ValueError("t_ns must be a non-empty, strictly increasing (N,) array")
+    gyro, accel = _measurements(traj.state_ns(t_ns))
+    n = len(t_ns)
+    if noise is None:
+        zeros = np.zeros((n, 3))
+        return SyntheticImu(ImuData(t_ns=t_ns, gyro=gyro, accel=accel), zeros, zeros.copy())
+    dt = 1.0 / rate_hz
+    nz = imu_noise(n, dt, noise, seed, steps=np.diff(t_ns).astype(np.float64) * 1e-9)
+    gyro = gyro + nz["bias_gyro"] + nz["white_gyro"]
+    accel = accel + nz["bias_accel"] + nz["white_accel"]
+    return SyntheticImu(ImuData(t_ns=t_ns, gyro=gyro, accel=accel),
+                        nz["bias_gyro"], nz["bias_accel"])
+
+
+def ground_truth_from_trajectory(traj: Trajectory, t_ns, bias_gyro=None, bias_accel=None, *,
+                                 bias_t_ns=None) -> GroundTruth:
+    """Ground-truth states (EuRoC's 17 columns) of a trajectory at int64 ns times.
+
+    Args:
+        traj: the trajectory.
+        t_ns: (N,) int64 nanoseconds inside the trajectory's span.
+        bias_gyro, bias_accel: the true IMU biases, (N, 3) at ``t_ns`` -- or at ``bias_t_ns``
+            (e.g. the IMU's times), then linearly interpolated (held constant outside).
+            ``None`` means zero (an exact IMU).
+        bias_t_ns: see above.
+
+    Returns:
+        ``GroundTruth`` with position, unit quaternion (w, x, y, z; sign-continuous), world
+        velocity and both biases filled in.
+    """
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    state = traj.state_ns(t_ns)
+    n = len(t_ns)
+
+    def bias(b):
+        if b is None:
+            return np.zeros((n, 3))
+        b = np.asarray(b, dtype=np.float64)
+        if bias_t_ns is not None:
+            src = np.asarray(bias_t_ns, dtype=np.int64)
+            if b.shape != (len(src), 3):
+                raise ValueError(f"bias shape {b.shape} does not match bias_t_ns ({len(src)})")
+            x = (src - src[0]).astype(np.float64)
+            xi = (t_ns - src[0]).astype(np.float64)
+            return np.stack([np.interp(xi, x, b[:, j]) for j in range(3)], axis=1)
+        if b.shape != (n, 3):
+            raise ValueError(f"bias shape {b.shape} does not match t_ns ({n})")
+        return b.copy()
+
+    return GroundTruth(t_ns=t_ns, position=state.position, quaternion=state.quaternion,
+                       velocity=state.velocity, bias_gyro=bias(bias_gyro),
+                       bias_accel=bias(bias_accel))
