@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import re
 import warnings
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from conftest import shared_path
 
 from uavcal_jax.data import (
     camera_calibration_from_yaml,
@@ -18,8 +22,20 @@ from uavcal_jax.data import (
 )
 from uavcal_jax.data.sequence import CameraCalibration, GroundTruth, ImuCalibration, ImuData
 from uavcal_jax.data.targets import TargetLabels
+from uavcal_jax.data.tum import read_tum
 from uavcal_jax.errors import DataError, DataRepairWarning
 from uavcal_jax.geometry.camera import euroc_calibration
+from uavcal_jax.sim.imu_synth import ImuNoise, synthesize_imu
+from uavcal_jax.sim.simulate import (
+    SimConfig,
+    camera_calibrations,
+    imu_calibration,
+    load_flight,
+    scale_calibration,
+    simulate,
+    simulate_report,
+    stage_seeds,
+)
 from uavcal_jax.sim.writer import (
     GROUND_TRUTH_HEADER,
     IMU_HEADER,
@@ -171,3 +187,251 @@ def _assert_calib_equal(a: CameraCalibration, b: CameraCalibration) -> None:
     np.testing.assert_array_equal(a.T_BS, b.T_BS)
     assert tuple(a.resolution) == tuple(b.resolution)
     assert a.rate_hz == b.rate_hz
+
+
+# --------------------------------------------------------------------------------------------
+# simulate
+# --------------------------------------------------------------------------------------------
+
+SMALL = SimConfig(duration=1.0, resolution=(160, 100), seed=3)
+
+
+@pytest.fixture(scope="module")
+def small_sim(tmp_path_factory):
+    """One short rendered simulation shared by the tests below (compiles the renderer once)."""
+    root = tmp_path_factory.mktemp("sim") / "rec"
+    report = simulate_report(SMALL, root, progress=False)
+    return root, report
+
+
+def _hashes(root: Path) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _flight(config: SimConfig):
+    traj, t_ns, _ = load_flight(config, stage_seeds(config.seed))
+    return traj, t_ns
+
+
+def test_simulation_reads_back(small_sim):
+    root, report = small_sim
+    seq = _read_strict(root)
+    n_imu, n_cam = 201, 21  # 1 s at 200 Hz and 20 Hz, both ends included
+    assert len(seq.imu) == n_imu and len(seq.ground_truth) == n_imu
+    assert sorted(seq.cameras) == ["cam0", "cam1"]
+    assert sorted(seq.depth) == ["depth0", "depth1"]
+    assert np.all(np.diff(seq.imu.t_ns) == 5_000_000)
+    calibs = camera_calibrations(SMALL)
+    for i, name in enumerate(("cam0", "cam1")):
+        cam, depth = seq.cameras[name], seq.depth[f"depth{i}"]
+        assert len(cam) == n_cam and len(depth) == n_cam
+        assert np.all(np.diff(cam.t_ns) == 50_000_000)
+        np.testing.assert_array_equal(cam.t_ns, seq.imu.t_ns[::10])  # triggered with the IMU
+        np.testing.assert_array_equal(depth.t_ns, cam.t_ns)
+        _assert_calib_equal(cam.calibration, calibs[name])
+        _assert_calib_equal(depth.calibration, calibs[name])
+        assert cam.load(0).shape == (100, 160) and cam.load(0).dtype == np.uint8
+        d = depth.load(n_cam // 2)
+        assert d.shape == (100, 160)
+        assert (d > 0).mean() > 0.99  # a closed hall: every ray hits something
+        assert d.max() < 50.0
+    # Intrinsics scaled from EuRoC's 752x480, same field of view.
+    np.testing.assert_allclose(calibs["cam0"].intrinsics[:2],
+                               euroc_calibration(0).intrinsics[:2] * [160 / 752, 100 / 480])
+    _assert_imu_calib_equal(seq.imu_calibration, imu_calibration(SMALL))
+    assert seq.imu_calibration.rate_hz == 200.0
+    resolved = json.loads((root / "sim_config.json").read_text())
+    assert resolved["config"] == SMALL.to_dict()
+    assert resolved["counts"]["frames"] == n_cam
+
+
+def _assert_imu_calib_equal(a: ImuCalibration, b: ImuCalibration) -> None:
+    np.testing.assert_array_equal(a.T_BS, b.T_BS)
+    for f in dataclasses.fields(ImuCalibration):
+        if f.name != "T_BS":
+            assert getattr(a, f.name) == getattr(b, f.name), f.name
+
+
+def test_target_labels(small_sim):
+    root, report = small_sim
+    seq = _read_strict(root)
+    tg = seq.targets
+    assert tg is not None and len(tg) > 0, "the scene's targets should be seen"
+    assert set(np.unique(tg.camera)) <= {"cam0", "cam1"}
+    assert set(tg.t_ns) <= set(seq.cameras["cam0"].t_ns.tolist())
+    assert np.all(tg.visible_pixels > 0)
+    assert np.all((tg.box[:, 0] < tg.box[:, 2]) & (tg.box[:, 1] < tg.box[:, 3]))
+    assert np.all(tg.box >= 0)
+    assert np.all(tg.box[:, [0, 2]] <= 160) and np.all(tg.box[:, [1, 3]] <= 100)
+    assert np.all(tg.visible_pixels <= (tg.box[:, 2] - tg.box[:, 0]) *
+                  (tg.box[:, 3] - tg.box[:, 1]))
+    # The target's world position, seen from the ground-truth pose, projects near its box.
+    gt = seq.ground_truth
+    row_of = {int(t): i for i, t in enumerate(gt.t_ns)}
+    from scipy.spatial.transform import Rotation
+
+    checked = 0
+    for r in range(len(tg)):
+        box = tg.box[r]
+        if tg.visible_pixels[r] < 40:
+            continue
+        i = row_of[int(tg.t_ns[r])]
+        T_WB = np.eye(4)
+        T_WB[:3, :3] = Rotation.from_quat(gt.quaternion[i][[1, 2, 3, 0]]).as_matrix()
+        T_WB[:3, 3] = gt.position[i]
+        calib = seq.cameras[str(tg.camera[r])].calibration
+        T_CW = np.linalg.inv(T_WB @ calib.T_BS)
+        p = T_CW[:3, :3] @ tg.position[r] + T_CW[:3, 3]
+        assert p[2] > 0
+        uv, _ = cv2.projectPoints(p[None], np.zeros(3), np.zeros(3), calib.K, calib.distortion)
+        u, v = uv.ravel()
+        # Inside the box, except beyond a side the image border cuts (the centre may be
+        # outside the image there).
+        lo = np.where(box[:2] > 0, box[:2] - 2, -np.inf)
+        hi = np.where(box[2:] < (160, 100), box[2:] + 2, np.inf)
+        assert lo[0] <= u <= hi[0] and lo[1] <= v <= hi[1], (r, u, v, box)
+        checked += 1
+    assert checked > 0
+
+
+def test_ground_truth_equals_trajectory(small_sim):
+    root, _ = small_sim
+    seq = _read_strict(root)
+    traj, t_ns = _flight(SMALL)
+    gt = seq.ground_truth
+    np.testing.assert_array_equal(gt.t_ns, t_ns)
+    state = traj.state_ns(gt.t_ns)
+    np.testing.assert_array_equal(gt.position, state.position)
+    np.testing.assert_array_equal(gt.quaternion, state.quaternion)
+    np.testing.assert_array_equal(gt.velocity, state.velocity)
+    # The IMU is the exact IMU plus the ground truth's biases plus white noise.
+    exact = synthesize_imu(traj, 200.0, None, t_ns=t_ns).imu
+    white_g = seq.imu.gyro - exact.gyro - gt.bias_gyro
+    white_a = seq.imu.accel - exact.accel - gt.bias_accel
+    noise = ImuNoise()
+    np.testing.assert_allclose(white_g.std(), noise.gyro_noise_density * np.sqrt(200), rtol=0.15)
+    np.testing.assert_allclose(white_a.std(), noise.accel_noise_density * np.sqrt(200),
+                               rtol=0.15)
+    assert np.abs(gt.bias_gyro).max() > 1e-4  # turn-on biases are there
+
+
+def test_same_seed_same_files_different_seed_differs(small_sim, tmp_path):
+    root, _ = small_sim
+    simulate(SMALL, tmp_path / "again", progress=False)
+    assert _hashes(tmp_path / "again") == _hashes(root)
+    other = dataclasses.replace(SMALL, seed=4, frames=False)
+    simulate(other, tmp_path / "other", progress=False)
+    h_other = _hashes(tmp_path / "other")
+    h_root = _hashes(root)
+    for name in ("mav0/imu0/data.csv", "mav0/state_groundtruth_estimate0/data.csv"):
+        assert h_other[name] != h_root[name]
+
+
+def test_no_frames_and_exact_imu(tmp_path):
+    config = SimConfig(duration=2.0, seed=5, frames=False, imu_noise=False)
+    simulate(config, tmp_path / "rec", progress=False)
+    mav0 = tmp_path / "rec" / "mav0"
+    assert sorted(p.name for p in mav0.iterdir() if p.is_dir()) == [
+        "imu0", "state_groundtruth_estimate0"]
+    seq = _read_strict(tmp_path / "rec")
+    assert seq.cameras == {} and seq.depth == {} and seq.targets is None
+    traj, t_ns = _flight(config)
+    exact = synthesize_imu(traj, 200.0, None, t_ns=t_ns)
+    np.testing.assert_array_equal(seq.imu.t_ns, exact.imu.t_ns)
+    np.testing.assert_array_equal(seq.imu.gyro, exact.imu.gyro)
+    np.testing.assert_array_equal(seq.imu.accel, exact.imu.accel)
+    np.testing.assert_array_equal(seq.ground_truth.bias_gyro, 0.0)
+    np.testing.assert_array_equal(seq.ground_truth.bias_accel, 0.0)
+
+
+def test_procedural_imu_is_mounted_like_euroc(tmp_path):
+    """EuRoC's IMU x axis points up (gravity reads ~+9.8 on x), its z axis (the cameras'
+    optical axis) forward and ~20 degrees down."""
+    config = SimConfig(duration=1.0, seed=1, frames=False, imu_noise=False)
+    traj, t_ns = _flight(config)
+    accel = synthesize_imu(traj, 200.0, None, t_ns=t_ns[:1]).imu.accel[0]  # hovering
+    np.testing.assert_allclose(accel / np.linalg.norm(accel),
+                               [np.cos(np.radians(20)), 0.0, -np.sin(np.radians(20))], atol=1e-3)
+
+
+@pytest.mark.realdata
+def test_trajectory_file_keeps_its_clock(tmp_path):
+    path = shared_path("trajectories", "euroc", "V1_01_easy.txt")
+    tum = read_tum(path)
+    config = SimConfig(trajectory=str(path), start=2.0, duration=1.0, frames=False,
+                       imu_noise=False)
+    simulate(config, tmp_path / "rec", progress=False)
+    seq = _read_strict(tmp_path / "rec")
+    first = int(tum.t_ns[0])
+    assert seq.imu.t_ns[0] == first + 2_000_000_000
+    assert tum.t_ns[0] <= seq.imu.t_ns[0] and seq.imu.t_ns[-1] <= tum.t_ns[-1]
+    np.testing.assert_array_equal(seq.ground_truth.t_ns, seq.imu.t_ns)
+    # The file is 200 Hz: the simulated states sit on its own timestamps, close to its poses.
+    idx = np.searchsorted(tum.t_ns, seq.ground_truth.t_ns)
+    np.testing.assert_array_equal(tum.t_ns[idx], seq.ground_truth.t_ns)
+    assert np.abs(seq.ground_truth.position - tum.position[idx]).max() < 0.005
+    dots = np.abs(np.sum(seq.ground_truth.quaternion * tum.quaternion[idx], axis=1))
+    assert np.degrees(2 * np.arccos(np.minimum(dots, 1.0))).max() < 0.5
+
+
+@pytest.mark.realdata
+def test_trajectory_window_outside_the_file(tmp_path):
+    path = shared_path("trajectories", "euroc", "V1_01_easy.txt")
+    with pytest.raises(DataError, match="past the end") as err:
+        simulate(SimConfig(trajectory=str(path), start=1000.0, frames=False), tmp_path / "a",
+                 progress=False)
+    assert str(path) in str(err.value)
+    with pytest.raises(DataError, match="runs past the end") as err:
+        simulate(SimConfig(trajectory=str(path), start=140.0, duration=10.0, frames=False),
+                 tmp_path / "b", progress=False)
+    assert str(path) in str(err.value)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_missing_trajectory_file(tmp_path):
+    path = tmp_path / "nope.txt"
+    with pytest.raises(DataError) as err:
+        simulate(SimConfig(trajectory=str(path), frames=False), tmp_path / "out", progress=False)
+    assert str(path) in str(err.value)
+
+
+def test_output_folder_rules(tmp_path):
+    config = SimConfig(duration=0.5, frames=False)
+    out = tmp_path / "rec"
+    out.mkdir()  # an empty folder is fine
+    simulate(config, out, progress=False)
+    with pytest.raises(DataError, match="--overwrite"):
+        simulate(config, out, progress=False)
+    simulate(dataclasses.replace(config, seed=9), out, progress=False, overwrite=True)
+    assert json.loads((out / "sim_config.json").read_text())["config"]["seed"] == 9
+    other = tmp_path / "precious"
+    other.mkdir()
+    (other / "notes.txt").write_text("keep me")
+    with pytest.raises(DataError, match="not a previous simulation"):
+        simulate(config, other, progress=False, overwrite=True)
+    assert (other / "notes.txt").read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["precious", "rec"]  # no leftovers
+
+
+def test_failure_leaves_no_output(tmp_path, monkeypatch):
+    import uavcal_jax.sim.simulate as sim
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(sim.imu_synth, "ground_truth_from_trajectory", boom)
+    with pytest.raises(RuntimeError, match="boom"):
+        simulate(SimConfig(duration=0.5, frames=False), tmp_path / "rec", progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_scale_calibration_keeps_field_of_view():
+    full = euroc_calibration(0)
+    half = scale_calibration(full, (376, 240))
+    assert half.resolution == (376, 240)
+    # The image corners see the same directions.
+    for (u, v), (uh, vh) in [((-0.5, -0.5), (-0.5, -0.5)), ((751.5, 479.5), (375.5, 239.5))]:
+        a = (np.array([u, v]) - full.intrinsics[2:]) / full.intrinsics[:2]
+        b = (np.array([uh, vh]) - half.intrinsics[2:]) / half.intrinsics[:2]
+        np.testing.assert_allclose(a, b, atol=1e-12)
