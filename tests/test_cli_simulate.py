@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import cv2
+import numpy as np
 import pytest
 from conftest import shared_path
 
@@ -110,3 +112,15 @@ def test_demo_json_keep(capsys, tmp_path):
     assert summary["warnings"] == []
     assert (keep / "mav0" / "cam0" / "data.csv").is_file()
     assert (keep / "sim_config.json").is_file()
+
+
+def test_rgb_frames_small_resolution(capsys, tmp_path):
+    code, out, err = _run(capsys, "simulate", "--out", str(tmp_path / "rec"), "--color", "rgb",
+                          "--resolution", "64x40", "--duration", "0.2", "--no-depth", "--json")
+    assert code == 0, err
+    assert json.loads(out.strip().splitlines()[-1])["frames"] == 5
+    seq = read_euroc(tmp_path / "rec")
+    assert seq.depth == {}
+    assert seq.cameras["cam1"].calibration.resolution == (64, 40)
+    raw = cv2.imread(str(seq.cameras["cam1"].paths[0]), cv2.IMREAD_UNCHANGED)
+    assert raw.shape == (40, 64, 3) and raw.dtype == np.uint8
