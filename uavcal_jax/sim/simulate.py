@@ -10,9 +10,14 @@ temporary sibling folder (``.<name>.partial-*``) and renamed at the end, so a fo
 Time. A trajectory file keeps its own clock: ``SimConfig.start`` counts seconds from the
 file's first timestamp, and every timestamp written (IMU, ground truth, frames) is on the
 file's clock, so a simulated and a real recording of the same flight line up. A procedural
-flight starts at the trajectory's own ``t_start``. Cameras are triggered on IMU samples (as in
+flight starts at the trajectory's own ``t_start`` (0 s). Cameras are triggered on IMU samples (as in
 EuRoC: every ``imu_rate_hz / camera_rate_hz``-th IMU timestamp) when the rates divide; the
 scene (moving targets) is evaluated at seconds since the flight's first sample.
+
+Body frame. The body frame is the IMU frame. A trajectory file is EuRoC's IMU frame already; a
+procedural flight (a quadrotor frame, z up) gets EuRoC's IMU mounting (:func:`mount_imu`: IMU
+x up, z forward and 20 degrees down), so EuRoC's camera extrinsics look ahead and the IMU
+reads gravity on x as EuRoC's does.
 
 Frames. Both EuRoC cameras (cam0, cam1: intrinsics, radial-tangential distortion and
 ``T_BS`` of the real VI-sensor) are rendered at ``T_WC = T_WB(t) @ T_BS``; another resolution
