@@ -58,6 +58,7 @@ from uavcal_jax.data.targets import TargetLabels
 from uavcal_jax.data.tum import read_tum
 from uavcal_jax.errors import DataError
 from uavcal_jax.geometry import camera as camera_model
+from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.sim import imu_synth, render, scene, trajectory
 from uavcal_jax.sim.writer import EurocWriter, depth_to_millimetres
 
@@ -472,7 +473,6 @@ def _render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
     """Render both cameras at the frame times and queue frames, depth and labels to
     ``writer``. Returns the scene/counts description and the stage timings (``compile``,
     ``render``, ``write_wait``)."""
-    from uavcal_jax.commands.common import progress as progress_bar
 
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
