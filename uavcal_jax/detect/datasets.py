@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 import warnings
 import xml.etree.ElementTree as ET
 from concurrent.futures import ThreadPoolExecutor
@@ -136,7 +137,7 @@ class _Problems:
         self.clipped = 0
         self.outside: list[str] = []
 
-    def warn(self, stacklevel: int = 3) -> None:
+    def warn(self) -> None:
         parts = []
 
         def listing(items):
@@ -155,7 +156,15 @@ class _Problems:
             parts.append(f"clipped {self.clipped} boxes to their image")
         if parts:
             warnings.warn(f"{self.where}: " + ", ".join(parts), DataRepairWarning,
-                          stacklevel=stacklevel)
+                          stacklevel=_caller_stacklevel())
+
+
+def _caller_stacklevel() -> int:
+    """The stack level of the first frame outside this module (for ``warnings.warn``)."""
+    frame, level = sys._getframe(1), 1
+    while frame is not None and frame.f_code.co_filename == __file__:
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def image_size(path: Path, check: bool = True) -> tuple[int, int] | None:
