@@ -1,0 +1,142 @@
+"""Jitted fixed-size NMS against a plain NumPy greedy NMS; postprocess/decode behaviour."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from uavcal_jax.detect.config import DetectorConfig
+from uavcal_jax.detect.decode import decode
+from uavcal_jax.detect.nms import nms, postprocess
+
+
+def numpy_greedy_nms(boxes, scores, classes, iou_thresh, max_det, valid=None):
+    """Per-class greedy NMS in float64, torchvision semantics (suppress IoU > thresh)."""
+    boxes = boxes.astype(np.float64)
+    idx = np.arange(len(scores)) if valid is None else np.flatnonzero(valid)
+    order = idx[np.argsort(-scores[idx], kind="stable")]
+    keep = []
+    area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+    suppressed = np.zeros(len(scores), bool)
+    for i in order:
+        if suppressed[i]:
+            continue
+        keep.append(i)
+        if len(keep) == max_det:
+            break
+        same = classes == classes[i]
+        iw = np.clip(np.minimum(boxes[i, 2], boxes[:, 2]) - np.maximum(boxes[i, 0], boxes[:, 0]),
+                     0, None)
+        ih = np.clip(np.minimum(boxes[i, 3], boxes[:, 3]) - np.maximum(boxes[i, 1], boxes[:, 1]),
+                     0, None)
+        inter = iw * ih
+        iou = inter / (area[i] + area - inter)
+        suppressed |= same & (iou > iou_thresh)
+    return np.array(keep, int)
+
+
+def _random_boxes(rng, n, n_cls, size=200.0):
+    xy = rng.uniform(0, size, (n, 2))
+    wh = rng.uniform(5, 60, (n, 2))
+    boxes = np.concatenate([xy, xy + wh], 1).astype(np.float32)
+    scores = rng.random(n).astype(np.float32)
+    classes = rng.integers(0, n_cls, n).astype(np.int32)
+    return boxes, scores, classes
+
+
+@pytest.mark.parametrize("seed,n,n_cls,thr", [(0, 300, 1, 0.45), (1, 500, 4, 0.5), (2, 80, 3, 0.3)])
+def test_matches_numpy_greedy(seed, n, n_cls, thr):
+    rng = np.random.default_rng(seed)
+    boxes, scores, classes = _random_boxes(rng, n, n_cls)
+    f = jax.jit(lambda b, s, c: nms(b, s, c, max_det=300, iou_thresh=thr))
+    det = f(boxes, scores, classes)
+    ref = numpy_greedy_nms(boxes, scores, classes, thr, 300)
+    nv = int(det.valid.sum())
+    assert nv == len(ref)
+    np.testing.assert_allclose(np.asarray(det.boxes[:nv]), boxes[ref])
+    np.testing.assert_allclose(np.asarray(det.scores[:nv]), scores[ref])
+    np.testing.assert_array_equal(np.asarray(det.classes[:nv]), classes[ref])
+    assert not np.asarray(det.valid[nv:]).any()
+    assert np.all(np.asarray(det.scores[nv:]) == 0)
+
+
+def test_valid_mask_max_det_and_batch():
+    rng = np.random.default_rng(3)
+    b = np.stack([_random_boxes(rng, 200, 2)[0] for _ in range(3)])
+    s = rng.random((3, 200)).astype(np.float32)
+    c = rng.integers(0, 2, (3, 200)).astype(np.int32)
+    v = rng.random((3, 200)) < 0.7
+    det = jax.jit(lambda *a: nms(*a[:3], valid=a[3], max_det=10, iou_thresh=0.45))(b, s, c, v)
+    assert det.boxes.shape == (3, 10, 4) and det.valid.shape == (3, 10)
+    for i in range(3):
+        ref = numpy_greedy_nms(b[i], s[i], c[i], 0.45, 10, valid=v[i])
+        nv = int(det.valid[i].sum())
+        assert nv == len(ref) == 10
+        np.testing.assert_allclose(np.asarray(det.scores[i, :nv]), s[i][ref])
+
+
+def test_pre_topk_and_no_candidates():
+    rng = np.random.default_rng(4)
+    boxes, scores, classes = _random_boxes(rng, 400, 2)
+    # with the candidates cut to the best 1000 > n, nothing changes
+    a = nms(boxes, scores, classes, max_det=50, pre_nms_topk=1000)
+    b = nms(boxes, scores, classes, max_det=50)
+    np.testing.assert_array_equal(np.asarray(a.scores), np.asarray(b.scores))
+    # top-k 100: same as NumPy NMS over the 100 best boxes
+    c = nms(boxes, scores, classes, max_det=300, pre_nms_topk=100)
+    top = np.argsort(-scores, kind="stable")[:100]
+    ref = numpy_greedy_nms(boxes[top], scores[top], classes[top], 0.45, 300)
+    np.testing.assert_allclose(np.asarray(c.scores[: len(ref)]), scores[top][ref])
+    assert int(c.valid.sum()) == len(ref)
+    none = nms(boxes, scores, classes, valid=np.zeros(400, bool), max_det=20)
+    assert not np.asarray(none.valid).any()
+
+
+def test_class_offset_keeps_overlapping_boxes_of_other_classes():
+    boxes = np.array([[10, 10, 50, 50], [12, 12, 52, 52], [11, 11, 51, 51]], np.float32)
+    scores = np.array([0.9, 0.8, 0.7], np.float32)
+    det = nms(boxes, scores, np.array([0, 1, 0]), max_det=5, iou_thresh=0.5)
+    np.testing.assert_allclose(np.asarray(det.scores[:2]), [0.9, 0.8])
+    assert int(det.valid.sum()) == 2
+    det = nms(boxes, scores, np.array([0, 1, 0]), max_det=5, iou_thresh=0.5, agnostic=True)
+    assert int(det.valid.sum()) == 1
+
+
+def _outputs_with_one_object(cfg):
+    outs = [np.full((1, h, w, 3, cfg.num_outputs), -10.0, np.float32) for h, w in cfg.grid_sizes()]
+    # level 0, cell (gx=5, gy=3), anchor 1: sigmoid(0) = 0.5 -> xy = (0.5*2-0.5+g)*8,
+    # wh = (2*0.5)^2 * anchor
+    outs[0][0, 3, 5, 1, :4] = 0.0
+    outs[0][0, 3, 5, 1, 4] = 4.0  # objectness
+    outs[0][0, 3, 5, 1, 5 + 1] = 3.0  # class 1
+    return tuple(outs)
+
+
+def test_decode_and_postprocess_single_object():
+    cfg = DetectorConfig(num_classes=3, img_size=(64, 96))
+    outs = _outputs_with_one_object(cfg)
+    boxes, obj, cls = decode(outs, cfg)
+    n = sum(h * w * 3 for h, w in cfg.grid_sizes())
+    assert boxes.shape == (1, n, 4) and obj.shape == (1, n) and cls.shape == (1, n, 3)
+    i = (3 * 12 + 5) * 3 + 1  # level 0 ordering: row, column, anchor
+    cx, cy = (0.5 + 5) * 8, (0.5 + 3) * 8
+    aw, ah = cfg.anchors[0][1]
+    np.testing.assert_allclose(
+        np.asarray(boxes[0, i]), [cx - aw / 2, cy - ah / 2, cx + aw / 2, cy + ah / 2], atol=1e-4
+    )
+    det = jax.jit(lambda o: postprocess(o, cfg, conf_thresh=0.25, max_det=7))(outs)
+    assert det.boxes.shape == (1, 7, 4)
+    assert int(det.valid.sum()) == 1
+    assert int(det.classes[0, 0]) == 1
+    expect = 1 / (1 + np.exp(-4.0)) / (1 + np.exp(-3.0))
+    assert float(det.scores[0, 0]) == pytest.approx(expect, rel=1e-5)
+    outs[0][0, 3, 5, 1, 5 + 0] = 0.0  # class 0 probability 0.5: a second label
+    ml = postprocess(outs, cfg, conf_thresh=0.01, max_det=7, multi_label=True)
+    # multi-label: the same box appears once per class above the threshold (class 2 is not)
+    assert int(ml.valid.sum()) == 2
+    np.testing.assert_array_equal(np.asarray(ml.classes[0, :2]), [1, 0])
+    np.testing.assert_allclose(np.asarray(ml.boxes[0, 0]), np.asarray(ml.boxes[0, 1]))
+    single = postprocess(outs, cfg, conf_thresh=0.01, max_det=7)
+    assert int(single.valid.sum()) == 1
