@@ -348,11 +348,13 @@ def _target_size(rng, cls: int) -> np.ndarray:
     return 0.5 * np.array([rng.uniform(0.4, 0.6), rng.uniform(0.28, 0.4), rng.uniform(1.55, 1.9)])
 
 
-def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles) -> list[dict]:
+def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
+                   anchors=None, view_yaw=None) -> list[dict]:
     targets: list[dict] = []
+    if anchors is None:
+        anchors = keep[:, :2]
     floor = room_lo[2]
     n_moving = int(round(cfg.n_targets * cfg.moving_fraction))
-    path_xy = keep[:, :2]
     for i in range(cfg.n_targets):
         cls = int(cfg.target_classes[i % len(cfg.target_classes)])
         half = _target_size(rng, cls)
@@ -373,8 +375,12 @@ def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles) -> lis
                     radii = np.zeros(2)
                     reach = float(np.hypot(half[0], half[1]))
                 if attempt < 110:  # near the path, so the cameras see it
-                    anchor = path_xy[rng.integers(len(path_xy))]
-                    ang = rng.uniform(-np.pi, np.pi)
+                    k = rng.integers(len(anchors))
+                    anchor = anchors[k]
+                    if view_yaw is None:
+                        ang = rng.uniform(-np.pi, np.pi)
+                    else:  # inside the horizontal field of view, so the target is seen
+                        ang = view_yaw[k] + rng.uniform(-0.5, 0.5)
                     dist = reach + cfg.clearance + rng.uniform(*cfg.target_distance)
                     xy = anchor + dist * np.array([np.cos(ang), np.sin(ang)])
                 else:
@@ -563,6 +569,7 @@ def make_scene(
     config: SceneConfig | None = None,
     *,
     path_points=None,
+    view_directions=None,
 ) -> Scene:
     """Build a scene around the axis-aligned bounds ``[lo, hi]`` of a flight.
 
@@ -573,6 +580,9 @@ def make_scene(
         path_points: (M, 3) sampled path positions; obstacles and targets keep
             ``config.clearance`` from them. Without them the whole ``[lo, hi]`` box is kept
             clear (fewer places for solids, but always safe).
+        view_directions: (M, 3) world-frame optical axes of a camera at ``path_points``;
+            when given, targets are placed in front of that camera (within about +-30 degrees
+            of its heading) instead of in any direction around the path.
 
     Returns:
         The scene (arrays float32; textures in one flat atlas).
@@ -592,7 +602,16 @@ def make_scene(
     keep, keep_pad = _keepout_points(lo, hi, path_points)
 
     obstacles = _place_obstacles(rng, cfg, room_lo, room_hi, keep, keep_pad)
-    targets = _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles)
+    anchors = view_yaw = None
+    if view_directions is not None and path_points is not None:
+        anchors = np.asarray(path_points, dtype=np.float64).reshape(-1, 3)[:, :2]
+        view = np.asarray(view_directions, dtype=np.float64).reshape(-1, 3)
+        if view.shape[0] != anchors.shape[0]:
+            raise ValueError(f"view_directions has {view.shape[0]} rows, path_points "
+                             f"{anchors.shape[0]}")
+        view_yaw = np.arctan2(view[:, 1], view[:, 0])
+    targets = _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
+                             anchors, view_yaw)
 
     room_c, room_h = 0.5 * (room_lo + room_hi), 0.5 * (room_hi - room_lo)
     static = [(room_c, 0.0, room_h)] + [(o.center, o.yaw, o.half) for o in obstacles]

@@ -483,8 +483,10 @@ def _render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
     T_WC = {name: T_WB @ calibs[name].T_BS for name in CAMERAS}
 
     lo, hi = traj.bounds()
-    path = traj.position(traj.times(10.0))  # obstacles and targets keep clear of the path
-    scn = scene.make_scene(lo, hi, scene_seed, path_points=path)
+    path_t = traj.times(10.0)
+    path = traj.position(path_t)  # obstacles and targets keep clear of the path
+    optical_axis = traj.rotation_matrix(path_t) @ calibs[CAMERAS[0]].T_BS[:3, 2]
+    scn = scene.make_scene(lo, hi, scene_seed, path_points=path, view_directions=optical_axis)
     class_id, positions, class_names = _target_info(scn, t_rel)
     n_targets = int(class_id.shape[0])
     bundles = [jax.tree_util.tree_map(jnp.asarray, render.ray_bundle(
