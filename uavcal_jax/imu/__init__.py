@@ -1,0 +1,67 @@
+"""IMU preintegration as a ``lax.scan``, interval cutting, prediction and the IMU residual.
+
+Public API::
+
+    preintegrate(dt, gyro, accel, bias_gyro, bias_accel, *, mask, noise, offset, scheme,
+                 bias_covariance) -> Preintegrated
+    bias_correct(pim, bias_gyro, bias_accel) -> (delta_R, delta_v, delta_p)
+    predict(state_i, pim, bias) -> NavState
+    imu_residual / imu_residual_whitened / residual_covariance / imu_cost
+    interval_samples / interval_batch / interval_samples_padded  (cut [t_i, t_j] from a stream)
+    add_offset / remove_offset
+
+See :mod:`uavcal_jax.imu.preintegration` for the schemes, orders and the bad-input policy.
+"""
+
+from uavcal_jax.imu.interval import (
+    ImuInterval,
+    interval_batch,
+    interval_capacity,
+    interval_samples,
+    interval_samples_padded,
+)
+from uavcal_jax.imu.noise import EUROC_ADIS16448, PreintegrationNoise
+from uavcal_jax.imu.offset import add_offset, remove_offset, split_offset
+from uavcal_jax.imu.preintegration import (
+    SCHEMES,
+    THETA_LIMIT,
+    Preintegrated,
+    bias_correct,
+    preintegrate,
+)
+from uavcal_jax.imu.residual import (
+    GRAVITY,
+    ImuBias,
+    NavState,
+    imu_cost,
+    imu_residual,
+    imu_residual_whitened,
+    predict,
+    residual_covariance,
+)
+
+__all__ = [
+    "EUROC_ADIS16448",
+    "GRAVITY",
+    "SCHEMES",
+    "THETA_LIMIT",
+    "ImuBias",
+    "ImuInterval",
+    "NavState",
+    "Preintegrated",
+    "PreintegrationNoise",
+    "add_offset",
+    "bias_correct",
+    "imu_cost",
+    "imu_residual",
+    "imu_residual_whitened",
+    "interval_batch",
+    "interval_capacity",
+    "interval_samples",
+    "interval_samples_padded",
+    "predict",
+    "preintegrate",
+    "remove_offset",
+    "residual_covariance",
+    "split_offset",
+]
