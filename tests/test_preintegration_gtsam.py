@@ -66,7 +66,8 @@ def _gtsam_params(noise, combined=False):
 def _gtsam_pims(seq, i, j, noise, combined=False):
     gt, imu = seq.ground_truth, seq.imu
     params = _gtsam_params(noise, combined)
-    cls = gtsam.PreintegratedCombinedMeasurements if combined else gtsam.PreintegratedImuMeasurements
+    cls = (gtsam.PreintegratedCombinedMeasurements if combined
+           else gtsam.PreintegratedImuMeasurements)
     out = []
     for a, b in zip(i, j, strict=True):
         iv = interval_samples(imu, t_start=gt.t_ns[a], t_end=gt.t_ns[b])
@@ -137,7 +138,8 @@ def test_recursive_covariance_is_gtsams(v101, cases):
     ours = _ours(v101, i, j, noise, covariance="recursive")
     for n, p in enumerate(pims):
         ref = p.preintMeasCov()
-        np.testing.assert_allclose(ours.gtsam_cov[n], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+        np.testing.assert_allclose(ours.gtsam_cov[n], ref, rtol=1e-9,
+                                   atol=1e-12 * np.abs(ref).max())
 
 
 def test_combined_covariance_is_gtsams(v101):
@@ -148,7 +150,8 @@ def test_combined_covariance_is_gtsams(v101):
     ours = _ours(v101, i, j, noise, bias_covariance=True)
     for n, p in enumerate(pims):
         ref = p.preintMeasCov()
-        np.testing.assert_allclose(ours.gtsam_cov[n], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+        np.testing.assert_allclose(ours.gtsam_cov[n], ref, rtol=1e-9,
+                                   atol=1e-12 * np.abs(ref).max())
 
 
 @pytest.mark.parametrize("scheme", ["tangent", "manifold"])
@@ -173,8 +176,8 @@ def test_bias_jacobians_match_gtsam_central_differences(v101, cases, scheme):
                 b = b0.copy()
                 b[k] += sign * eps
                 st = pim.predict(state0, gtsam.imuBias.ConstantBias(b[3:], b[:3]))
-                outs.append(np.concatenate([gtsam.Rot3.Logmap(gtsam.Rot3(R0.T @ st.attitude().matrix())),
-                                            st.velocity(), st.position()]))
+                rot = gtsam.Rot3.Logmap(gtsam.Rot3(R0.T @ st.attitude().matrix()))
+                outs.append(np.concatenate([rot, st.velocity(), st.position()]))
             J[:, k] = (outs[0] - outs[1]) / (2 * eps)
         mine = ours.bias_jacobian[n]
         worst = max(worst, float(np.abs(mine - J).max()))
