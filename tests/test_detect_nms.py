@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -140,3 +139,28 @@ def test_decode_and_postprocess_single_object():
     np.testing.assert_allclose(np.asarray(ml.boxes[0, 0]), np.asarray(ml.boxes[0, 1]))
     single = postprocess(outs, cfg, conf_thresh=0.01, max_det=7)
     assert int(single.valid.sum()) == 1
+
+
+@pytest.mark.parametrize("multi_label", [False, True])
+def test_postprocess_equals_nms_of_decoded_boxes(multi_label):
+    cfg = DetectorConfig(num_classes=3, img_size=(64, 96))
+    rng = np.random.default_rng(9)
+    outs = tuple(rng.normal(0, 2, (2, h, w, 3, 8)).astype(np.float32) for h, w in cfg.grid_sizes())
+    det = postprocess(outs, cfg, conf_thresh=0.05, max_det=40, multi_label=multi_label)
+    boxes, obj, cls = (np.asarray(a) for a in decode(outs, cfg))
+    conf = obj[..., None] * cls
+    for b in range(2):
+        if multi_label:
+            bb = np.repeat(boxes[b], 3, 0)
+            ss = conf[b].reshape(-1)
+            cc = np.tile(np.arange(3), len(boxes[b]))
+            vv = (np.repeat(obj[b], 3) > 0.05) & (ss > 0.05)
+        else:
+            bb, ss, cc = boxes[b], conf[b].max(-1), conf[b].argmax(-1)
+            vv = (obj[b] > 0.05) & (ss > 0.05)
+        ref = numpy_greedy_nms(bb, ss, cc, 0.45, 40, valid=vv)
+        nv = int(det.valid[b].sum())
+        assert nv == len(ref)
+        np.testing.assert_allclose(np.asarray(det.scores[b, :nv]), ss[ref], rtol=1e-6)
+        np.testing.assert_allclose(np.asarray(det.boxes[b, :nv]), bb[ref], atol=1e-3)
+        np.testing.assert_array_equal(np.asarray(det.classes[b, :nv]), cc[ref])

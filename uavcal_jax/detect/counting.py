@@ -19,7 +19,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from uavcal_jax.detect.layers import DepthwiseConv
+from uavcal_jax.detect.layers import Conv2D, DepthwiseConv
 
 
 def count_params(variables_or_params) -> int:
@@ -41,7 +41,7 @@ def count_macs(module: nn.Module, input_shape, **apply_kwargs) -> int:
         mod = context.module
         if context.method_name != "__call__":
             return out
-        if isinstance(mod, nn.Conv):
+        if isinstance(mod, nn.Conv | Conv2D):
             kernel = mod.variables["params"]["kernel"]
             kh, kw, cin_g, cout = kernel.shape
             total[0] += math.prod(out.shape[:-1]) * cout * kh * kw * cin_g

@@ -13,7 +13,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from uavcal_jax.detect.layers import F32, torch_default_init
+from uavcal_jax.detect.layers import F32, Conv2D
 
 
 def _detect_bias_init(fan_in: int, stride: int, na: int, nc: int):
@@ -39,13 +39,10 @@ class DetectHead(nn.Module):
         na, no = self.num_anchors, 5 + self.num_classes
         outs = []
         for i, (x, s) in enumerate(zip(feats, self.strides, strict=True)):
-            y = nn.Conv(
+            y = Conv2D(
                 na * no,
-                (1, 1),
+                1,
                 use_bias=True,
-                dtype=F32,
-                param_dtype=F32,
-                kernel_init=torch_default_init,
                 bias_init=_detect_bias_init(x.shape[-1], s, na, self.num_classes),
                 name=f"m_{i}",
             )(x)

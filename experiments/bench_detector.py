@@ -1,0 +1,190 @@
+"""Speed and size of the detectors on this machine's CPU (RPEOD Table 3's FPS column).
+
+For each model (YZNet-YOLO-tiny first, then YZNet-YOLO and the YOLOv5n-like baseline) the
+whole inference path -- network, box decoding and NMS -- is one jitted function
+(:func:`uavcal_jax.detect.predict.make_predict_fn`), batch 1, a 640x480 (H=480, W=640)
+float32 image. It is compiled first (``compile_s``, timed apart), warmed up, then timed over
+``--runs`` calls (``ms_median``, ``ms_min``; ``fps = 1000 / ms_median``).
+
+Weights: random initialisation by default (YOLOv5's head bias init makes almost nothing pass
+``conf_thresh = 0.25``, so NMS has little to do); ``--worst-case`` also times
+``conf_thresh = 0.001`` with ``max_det = 300``, where the pre-NMS top-k is full (1,000
+candidates) and NMS keeps up to 300 boxes -- an upper bound on the cost of a trained model.
+``--variables PATH`` (a ``.msgpack`` of ``{"params", "batch_stats"}`` written by
+``flax.serialization.to_bytes``) times trained weights instead.
+
+Also reported: the classification YZNet's parameters and multiply-adds at 224x224 (paper:
+about 1.74 M and 5.9e7) and each detector's parameters and GFLOPs (2 x multiply-adds) at the
+input size. ``--dw-sweep`` times the depthwise-convolution implementations on the YZNet layer
+shapes first (the reason ``dw_impl="shift"`` is the default).
+
+The machine's cores may be shared; the median of many runs is robust to short bursts, and
+``ms_min`` shows the uncontended speed; ``cpu_ms_median`` is the process CPU time per call
+(both cores together), a load-independent measure of the work done. The last line printed
+is one JSON object.
+
+Usage::
+
+    python experiments/bench_detector.py                  # all three models, 30 runs each
+    python experiments/bench_detector.py --models yznet-yolo-tiny --runs 50 --worst-case
+    python experiments/bench_detector.py --dw-sweep
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from uavcal_jax.detect.config import DetectorConfig
+from uavcal_jax.detect.counting import classifier_counts, detector_counts
+from uavcal_jax.detect.layers import depthwise_grouped, depthwise_shift
+from uavcal_jax.detect.model import init_detector
+from uavcal_jax.detect.predict import make_predict_fn
+
+MODELS = ("yznet-yolo-tiny", "yznet-yolo", "yolov5n-like")
+
+
+def _time(fn, args, runs: int, warmup: int = 3, cpu: list | None = None) -> np.ndarray:
+    """Wall-clock ms per call; appends the process CPU ms per call to ``cpu`` if given."""
+    for _ in range(warmup):
+        jax.block_until_ready(fn(*args))
+    out = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        c = time.process_time()
+        jax.block_until_ready(fn(*args))
+        out.append(time.perf_counter() - t)
+        if cpu is not None:
+            cpu.append((time.process_time() - c) * 1e3)
+    return np.array(out) * 1e3
+
+
+def bench_model(model: str, args, image) -> dict:
+    cfg = DetectorConfig(model=model, num_classes=args.num_classes, img_size=(args.h, args.w),
+                         dw_impl=args.dw_impl)
+    if args.variables and model == args.models[0]:
+        from flax import serialization
+
+        template = init_detector(jax.random.key(0), cfg)
+        with open(args.variables, "rb") as f:
+            variables = serialization.from_bytes(template, f.read())
+    else:
+        variables = init_detector(jax.random.key(args.seed), cfg)
+    res = {"model": model, **detector_counts(cfg)}
+    settings = [("", args.conf_thresh, args.max_det)]
+    if args.worst_case:
+        settings.append(("worst_", 0.001, 300))
+    for prefix, conf, max_det in settings:
+        fn = make_predict_fn(cfg, conf_thresh=conf, max_det=max_det)
+        t0 = time.perf_counter()
+        compiled = fn.lower(variables, image).compile()
+        compile_s = time.perf_counter() - t0
+        cpu: list = []
+        ms = _time(compiled, (variables, image), args.runs, cpu=cpu)
+        det = compiled(variables, image)
+        res.update({
+            f"{prefix}conf_thresh": conf,
+            f"{prefix}max_det": max_det,
+            f"{prefix}compile_s": round(compile_s, 3),
+            f"{prefix}ms_median": round(float(np.median(ms)), 3),
+            f"{prefix}ms_min": round(float(np.min(ms)), 3),
+            f"{prefix}ms_p90": round(float(np.percentile(ms, 90)), 3),
+            f"{prefix}cpu_ms_median": round(float(np.median(cpu)), 3),
+            f"{prefix}fps": round(1000.0 / float(np.median(ms)), 2),
+            f"{prefix}detections": int(det.valid.sum()),
+        })
+    return res
+
+
+def dw_sweep(runs: int) -> list[dict]:
+    """Time depthwise implementations on the YZNet layer shapes at 640x480."""
+    shapes = [(240, 320, 16, 3, 2), (120, 160, 72, 3, 2), (60, 80, 88, 3, 1),
+              (60, 80, 96, 5, 2), (30, 40, 240, 5, 1), (30, 40, 480, 5, 2), (15, 20, 600, 5, 1)]
+    rows = []
+    for h, w, c, k, s in shapes:
+        x = jax.random.normal(jax.random.key(0), (1, h, w, c))
+        kern = jax.random.normal(jax.random.key(1), (k, k, 1, c))
+        row = {"shape": [h, w, c], "k": k, "stride": s}
+        ref = None
+        for name, f in (("shift", depthwise_shift), ("grouped", depthwise_grouped)):
+            jf = jax.jit(f, static_argnums=2)
+            out = jf(x, kern, s)
+            ref = out if ref is None else ref
+            row[f"{name}_ms"] = round(float(np.median(_time(jf, (x, kern, s), runs))), 3)
+            row[f"{name}_maxdiff"] = float(jnp.max(jnp.abs(out - ref)))
+        print(json.dumps(row), file=sys.stderr, flush=True)
+        rows.append(row)
+    return rows
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
+    p.add_argument("--runs", type=int, default=30, help="timed calls per model [30]")
+    p.add_argument("--h", type=int, default=480)
+    p.add_argument("--w", type=int, default=640)
+    p.add_argument("--num-classes", type=int, default=5, help="[5: the aerial car classes]")
+    p.add_argument("--conf-thresh", type=float, default=0.25)
+    p.add_argument("--max-det", type=int, default=300)
+    p.add_argument("--dw-impl", default="shift", choices=("shift", "grouped"))
+    p.add_argument("--worst-case", action="store_true", help="also time conf 0.001, 300 dets")
+    p.add_argument("--variables", help="trained variables (.msgpack) for the first model")
+    p.add_argument("--dw-sweep", action="store_true")
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+
+    summary: dict = {
+        "device": str(jax.devices()[0]),
+        "cpu_count": os.cpu_count(),
+        "processor": platform.processor() or platform.machine(),
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "input_hw": [args.h, args.w],
+        "runs": args.runs,
+        "dw_impl": args.dw_impl,
+    }
+    if args.dw_sweep:
+        summary["dw_sweep"] = dw_sweep(max(args.runs // 2, 5))
+    cls = classifier_counts(20, 224)
+    summary["params_classifier"] = cls["params"]
+    summary["macs_classifier"] = cls["macs"]
+    summary["params_classifier_paper"] = 1_740_000
+    summary["macs_classifier_paper"] = 59_000_000
+    image = jax.random.uniform(jax.random.key(1), (1, args.h, args.w, 3), jnp.float32)
+    results = {}
+    for model in args.models:
+        r = bench_model(model, args, image)
+        results[model] = r
+        worst = f"; worst case {r['worst_fps']:.1f} fps" if "worst_fps" in r else ""
+        print(f"{model}: {r['params']:,} params, {r['gflops']:.2f} GFLOPs, compile "
+              f"{r['compile_s']:.1f} s, {r['ms_median']:.2f} ms median ({r['ms_min']:.2f} min) "
+              f"= {r['fps']:.1f} fps, CPU {r['cpu_ms_median']:.1f} ms{worst}",
+              file=sys.stderr, flush=True)
+    first = results[args.models[0]]
+    summary.update({
+        "model": args.models[0],
+        "fps": first["fps"],
+        "ms_per_frame": first["ms_median"],
+        "ms_min": first["ms_min"],
+        "compile_s": first["compile_s"],
+        "params_detector": first["params"],
+        "gflops_detector": round(first["gflops"], 4),
+    })
+    if "worst_fps" in first:
+        summary["worst_fps"] = first["worst_fps"]
+    for model, r in results.items():
+        key = model.replace("-", "_")
+        summary[key] = {k: v for k, v in r.items() if k != "model"}
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
