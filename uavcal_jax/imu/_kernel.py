@@ -249,6 +249,8 @@ def run(h, w, a, var: dict, scheme: str, covariance: str, n_cov: int, unroll: in
     recursive = covariance == "recursive"
     if recursive:
         carry["cov"] = jnp.zeros(batch + (n_cov, n_cov), dtype)
+    else:
+        carry["t"] = jnp.zeros(batch, dtype)
 
     def step(c, x):
         h_k, w_k, a_k = x[..., 0], x[..., 1:4], x[..., 4:7]
@@ -271,8 +273,9 @@ def run(h, w, a, var: dict, scheme: str, covariance: str, n_cov: int, unroll: in
             F = _transition(n_cov, h_k, T, V, G, Rn)
             new["cov"] = F @ c["cov"] @ mT(F) + _recursive_noise(n_cov, h_k, G, Rn, var)
             return new, None
-        # ys for the closed-form covariance: velocity and position after the step
-        return new, jnp.concatenate([new["v"], new["p"]], -1)
+        new["t"] = c["t"] + h_k
+        # ys for the closed-form covariance: velocity, position and time after the step
+        return new, jnp.concatenate([new["v"], new["p"], new["t"][..., None]], -1)
 
     xs = jnp.concatenate([h[..., None], w, a], -1)  # (..., N, 7)
     xs = jnp.moveaxis(xs, -2, 0)
@@ -290,17 +293,16 @@ def _closed_covariance(out, ys, h, var, scheme: str):
     qi = jnp.stack(var["integration"], -1)
     t_n = out["t"]
     v_n, p_n = out["v"], out["p"]
-    v_k, p_k = ys[..., :3], ys[..., 3:]  # after step k
-    # time after step k, by a running sum that matches the scan's order
-    t_after = _running_sum(h)
+    v_k, p_k, t_after = ys[..., :3], ys[..., 3:6], ys[..., 6]  # after step k
     u = v_n[..., None, :] - v_k
     e = p_n[..., None, :] - p_k - v_k * (t_n[..., None] - t_after)[..., None]
     hh = h[..., None]
     su = jnp.sum(hh * u, -2)
     se = jnp.sum(hh * e, -2)
-    Suu = jnp.sum((hh * u)[..., :, None] * u[..., None, :], -3)
-    Sue = jnp.sum((hh * e)[..., :, None] * u[..., None, :], -3)  # sum h e u^T
-    See = jnp.sum((hh * e)[..., :, None] * e[..., None, :], -3)
+    hu, he = hh * u, hh * e
+    Suu = jnp.einsum("...ni,...nj->...ij", hu, u)
+    Sue = jnp.einsum("...ni,...nj->...ij", he, u)  # sum h e u^T
+    See = jnp.einsum("...ni,...nj->...ij", he, e)
     s3 = jnp.sum(h * h * h, -1)
     eye = _eye(t_n)
 
@@ -329,11 +331,3 @@ def _closed_covariance(out, ys, h, var, scheme: str):
         ],
         -2,
     )
-
-
-def _running_sum(h):
-    """Inclusive running sum along the last axis (via a scan: ``jnp.cumsum`` lowers to a
-    quadratic reduce-window on CPU)."""
-    hs = jnp.moveaxis(h, -1, 0)
-    _, ys = jax.lax.scan(lambda c, x: (c + x, c + x), jnp.zeros(hs.shape[1:], h.dtype), hs)
-    return jnp.moveaxis(ys, 0, -1)
