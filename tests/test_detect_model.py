@@ -155,3 +155,36 @@ def test_config_roundtrip_and_validation():
         DetectorConfig(img_size=(100, 640))
     with pytest.raises(ValueError):
         DetectorConfig(model="resnet")
+
+
+def test_depthwise_shift_gradients_equal_grouped():
+    x = jax.random.normal(jax.random.key(0), (2, 10, 12, 6))
+    k = jax.random.normal(jax.random.key(1), (5, 5, 1, 6))
+    w = jax.random.normal(jax.random.key(2), (2, 10, 12, 6))
+    for stride in (1, 2):
+        def loss(x, k, f=None, s=stride):
+            return jnp.sum(f(x, k, s) * w[:, : (10 - 1) // s + 1, : (12 - 1) // s + 1])
+
+        ga = jax.grad(lambda x, k: loss(x, k, depthwise_shift), argnums=(0, 1))(x, k)
+        gb = jax.grad(lambda x, k: loss(x, k, depthwise_grouped), argnums=(0, 1))(x, k)
+        for a, b in zip(ga, gb, strict=True):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-4)
+
+
+def test_space_to_depth_stem_equals_direct_conv():
+    from uavcal_jax.detect.layers import conv_s2d
+
+    x = jax.random.normal(jax.random.key(0), (2, 16, 20, 3))
+    for k, p in [(3, 1), (6, 2)]:
+        w = jax.random.normal(jax.random.key(1), (k, k, 3, 8))
+        ref = jax.lax.conv_general_dilated(x, w, (2, 2), ((p, p), (p, p)),
+                                           dimension_numbers=("NHWC", "HWIO", "NHWC"))
+        np.testing.assert_allclose(np.asarray(conv_s2d(x, w, p)), np.asarray(ref), atol=1e-4)
+
+
+def test_separable_max_pool_equals_reduce_window():
+    from uavcal_jax.detect.layers import max_pool_same
+
+    y = jax.random.normal(jax.random.key(0), (1, 15, 20, 6))
+    ref = nn.max_pool(y, (5, 5), strides=(1, 1), padding=((2, 2), (2, 2)))
+    np.testing.assert_array_equal(np.asarray(max_pool_same(y, 5)), np.asarray(ref))

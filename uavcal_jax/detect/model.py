@@ -4,6 +4,18 @@
 train=False)`` maps images ``(B, H, W, 3)`` float32 in ``[0, 1]`` to a tuple of three raw
 outputs ``(B, H/s, W/s, 3, 5 + C)`` for s = 8, 16, 32 (logits: x, y, w, h, obj, classes).
 With ``train=True`` pass ``mutable=["batch_stats"]`` to update the BN running statistics.
+
+The variants (RPEOD Table 3 names the two YZNet models but not their neck widths):
+
+* ``yznet-yolo``: YZNet taps (24, 80, 120 channels at strides 8, 16, 32), an SPPF on the
+  stride-32 tap (YOLOv5 puts one at the end of every backbone), then YOLOv5n's PANet neck
+  (outputs 64, 128, 256 channels, one bottleneck per C3) and the Detect head;
+* ``yznet-yolo-tiny``: the same with the neck halved (32, 64, 128);
+* ``yolov5n-like``: YOLOv5n v7.0 exactly (CSP backbone with a 6x6 stem, C3 blocks and SPPF;
+  the same neck as ``yznet-yolo``) -- the baseline a user would otherwise pick.
+
+Counts and speeds are in :mod:`uavcal_jax.detect.yznet`'s docstring and
+``experiments/bench_detector.py``.
 """
 
 from __future__ import annotations
