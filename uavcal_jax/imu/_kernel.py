@@ -232,10 +232,166 @@ def _transition(n: int, h, T, V, G, Rn):
     return jnp.concatenate([jnp.concatenate(r, -1) for r in rows], -2)
 
 
+# ---- component-wise ("batch-last") form of the scan -----------------------------------
+#
+# For the closed-form covariance the scan is written on *components*: a vector is a tuple of
+# 3 arrays and a 3x3 matrix a row-major tuple of 9 arrays, each of the batch shape ``...``.
+# Every operation in the loop body is then element-wise over the whole batch (contiguous,
+# SIMD-vectorised loops over the windows) instead of loops over tiny trailing 3 / 3x3 axes,
+# and this holds natively batched and under ``jax.vmap`` alike. The arithmetic (operands and
+# the order of every sum and product) is the same as in ``step`` below.
+
+
+def _cmm(x, y):
+    return tuple(x[3 * i] * y[j] + x[3 * i + 1] * y[3 + j] + x[3 * i + 2] * y[6 + j]
+                 for i in range(3) for j in range(3))
+
+
+def _cmv(x, v):
+    return tuple(x[3 * i] * v[0] + x[3 * i + 1] * v[1] + x[3 * i + 2] * v[2] for i in range(3))
+
+
+def _ccross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _cross_rows(R, a):
+    """Rows of ``R`` crossed with ``a`` (``jnp.cross(R, a[None])``)."""
+    return sum((_ccross(R[3 * i:3 * i + 3], a) for i in range(3)), ())
+
+
+def _ci_plus(v, alpha, beta):
+    x, y, z = v
+    s = x * x + y * y + z * z
+    bxy, bxz, byz = beta * x * y, beta * x * z, beta * y * z
+    ax, ay, az = alpha * x, alpha * y, alpha * z
+    return (1.0 + beta * (x * x - s), bxy - az, bxz + ay,
+            bxy + az, 1.0 + beta * (y * y - s), byz - ax,
+            bxz - ay, byz + ax, 1.0 + beta * (z * z - s))
+
+
+def _crot_step(scheme: str, rot, h, w, a, stage):
+    """:func:`_rotation_step` on components."""
+    if scheme == "tangent":
+        th = rot
+        s = th[0] * th[0] + th[1] * th[1] + th[2] * th[2]
+        (ca, cb, cc, cd, cdb, cdc), = stage(coefficients(s))
+        R, Jr, Ji = stage(_ci_plus(th, ca, cb), _ci_plus(th, -cb, cc),
+                          _ci_plus(th, jnp.full_like(cd, 0.5), cd))
+        c, = stage(_cmv(Ji, w))
+        u = _ccross(th, c)
+        q = _ccross(th, u)
+        g = tuple(-2.0 * cdb * u[i] + 2.0 * cdc * q[i] - 2.0 * cc * c[i] for i in range(3))
+        dot = cc * (th[0] * c[0] + th[1] * c[1] + th[2] * c[2])
+        hc = (None, -c[2], c[1], c[2], None, -c[0], -c[1], c[0], None)
+        D = []
+        for i in range(3):
+            for j in range(3):
+                d = g[i] * th[j] + cc * th[i] * c[j]
+                D.append(d + dot if i == j else d + cb * hc[3 * i + j])
+        D, RA = stage(D, _cross_rows(R, a))
+        JD, RAJ = stage(_cmm(Ji, D), _cmm(RA, Jr))
+        T = tuple((1.0 if k in (0, 4, 8) else 0.0) - h * JD[k] for k in range(9))
+        V = tuple(-h * x for x in RAJ)
+        T, V = stage(T, V)
+        return tuple(th[i] + h * c[i] for i in range(3)), T, V, Ji, R
+    R = rot
+    phi = tuple(x * h for x in w)
+    s = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    ca, cb, cc = coefficients(s)[:3]
+    dR = _ci_plus(phi, ca, cb)
+    G = _ci_plus(phi, -cb, cc)
+    V = tuple(-h * x for x in _cross_rows(R, a))
+    dRT = tuple(dR[3 * j + i] for i in range(3) for j in range(3))
+    return _cmm(R, dR), dRT, V, G, R
+
+
+def _run_components(h, w, a, var: dict, scheme: str, unroll: int) -> dict[str, Any]:
+    """:func:`run` for ``covariance="closed"`` with the scan on components (see above)."""
+    dtype = h.dtype
+    batch = h.shape[:-1]
+    z = jnp.zeros(batch, dtype)
+    one = jnp.ones(batch, dtype)
+    z3, z9 = (z,) * 3, (z,) * 9
+    eye9 = (one, z, z, z, one, z, z, z, one)
+    carry = {"rot": z3 if scheme == "tangent" else eye9, "p": z3, "v": z3, "Hr": z9, "Hv": z9,
+             "Hp": z9, "Hva": z9, "Hpa": z9, "t": z}
+
+    def add(x, y):
+        return tuple(xi + yi for xi, yi in zip(x, y, strict=True))
+
+    def scale(k, x):
+        return tuple(k * xi for xi in x)
+
+    def stage(*groups):
+        # materialise intermediates shared by many outputs: without the barrier XLA fuses
+        # them into every consumer and recomputes them (e.g. the coefficients per entry)
+        flat = [x for g in groups for x in g]
+        st = jax.lax.optimization_barrier(jnp.stack(flat, 0))
+        out, i = [], 0
+        for g in groups:
+            out.append(tuple(st[i + j] for j in range(len(g))))
+            i += len(g)
+        return tuple(out)
+
+    def step(c, x):
+        h_k, w_k, a_k = x[0], x[1:4], x[4:7]
+        new_rot, T, V, G, Rn = _crot_step(scheme, c["rot"], h_k, w_k, a_k, stage)
+        an, VH = stage(_cmv(Rn, a_k), _cmm(V, c["Hr"]))
+        p = tuple(c["p"][i] + h_k * c["v"][i] + 0.5 * h_k * h_k * an[i] for i in range(3))
+        v = add(c["v"], scale(h_k, an))
+        t = c["t"] + h_k
+        new = {
+            "rot": new_rot, "p": p, "v": v,
+            "Hr": tuple(x - h_k * g for x, g in zip(_cmm(T, c["Hr"]), G, strict=True)),
+            "Hv": add(c["Hv"], VH),
+            "Hp": tuple(hp + h_k * hv + 0.5 * h_k * vh
+                        for hp, hv, vh in zip(c["Hp"], c["Hv"], VH, strict=True)),
+            "Hva": tuple(x - h_k * r for x, r in zip(c["Hva"], Rn, strict=True)),
+            "Hpa": tuple(x + h_k * y - 0.5 * h_k * h_k * r
+                         for x, y, r in zip(c["Hpa"], c["Hva"], Rn, strict=True)),
+            "t": t,
+        }  # fmt: skip
+        return new, v + p + (t,)
+
+    xs = tuple(jnp.moveaxis(x, -1, 0) for x in (h, w[..., 0], w[..., 1], w[..., 2],
+                                                a[..., 0], a[..., 1], a[..., 2]))
+    out, ys = jax.lax.scan(step, carry, xs, unroll=unroll)
+    res: dict[str, Any] = {
+        k: jnp.stack(out[k], -1) if len(out[k]) == 3 else jnp.stack(out[k], -1).reshape(
+            batch + (3, 3))
+        for k in ("rot", "p", "v", "Hr", "Hv", "Hp", "Hva", "Hpa")
+    }
+    res["t"] = jnp.sum(h, -1)
+    # closed-form sums over the samples (axis 0 of ys), still batch-last
+    v_n, p_n, t_n = out["v"], out["p"], res["t"]
+    v_k, p_k, t_after = ys[0:3], ys[3:6], ys[6]
+    hT = xs[0]
+    u = tuple(v_n[i] - v_k[i] for i in range(3))
+    e = tuple(p_n[i] - p_k[i] - v_k[i] * (t_n - t_after) for i in range(3))
+    hu = tuple(hT * x for x in u)
+    he = tuple(hT * x for x in e)
+
+    def outer_sum(x, y):  # sum_n x_i y_j -> (..., 3, 3)
+        return jnp.stack([jnp.sum(x[i] * y[j], 0) for i in range(3) for j in range(3)],
+                         -1).reshape(batch + (3, 3))
+
+    sums = {
+        "su": jnp.stack([jnp.sum(x, 0) for x in hu], -1),
+        "se": jnp.stack([jnp.sum(x, 0) for x in he], -1),
+        "Suu": outer_sum(hu, u), "Sue": outer_sum(he, u), "See": outer_sum(he, e),
+        "s3": jnp.sum(h * h * h, -1),
+    }
+    res["cov"] = _closed_assemble(res, sums, var, scheme)
+    return res
+
+
 def run(h, w, a, var: dict, scheme: str, covariance: str, n_cov: int, unroll: int
         ) -> dict[str, Any]:
     """Scan over the samples. ``h`` (..., N); ``w``, ``a`` (..., N, 3) (bias-corrected,
     masked samples zeroed with ``h = 0``). Returns a dict of arrays (see ``preintegrate``)."""
+    if covariance == "closed":
+        return _run_components(h, w, a, var, scheme, unroll)
     dtype = h.dtype
     batch = h.shape[:-1]
     z3 = jnp.zeros(batch + (3,), dtype)
@@ -246,11 +402,7 @@ def run(h, w, a, var: dict, scheme: str, covariance: str, n_cov: int, unroll: in
         "p": z3, "v": z3,
         "Hr": z33, "Hv": z33, "Hp": z33, "Hva": z33, "Hpa": z33,
     }  # fmt: skip
-    recursive = covariance == "recursive"
-    if recursive:
-        carry["cov"] = jnp.zeros(batch + (n_cov, n_cov), dtype)
-    else:
-        carry["t"] = jnp.zeros(batch, dtype)
+    carry["cov"] = jnp.zeros(batch + (n_cov, n_cov), dtype)
 
     def step(c, x):
         h_k, w_k, a_k = x[..., 0], x[..., 1:4], x[..., 4:7]
@@ -269,41 +421,26 @@ def run(h, w, a, var: dict, scheme: str, covariance: str, n_cov: int, unroll: in
             "Hva": c["Hva"] - hs * Rn,
             "Hpa": c["Hpa"] + hs * c["Hva"] - 0.5 * hs * hs * Rn,
         }
-        if recursive:
-            F = _transition(n_cov, h_k, T, V, G, Rn)
-            new["cov"] = F @ c["cov"] @ mT(F) + _recursive_noise(n_cov, h_k, G, Rn, var)
-            return new, None
-        new["t"] = c["t"] + h_k
-        # ys for the closed-form covariance: velocity, position and time after the step
-        return new, jnp.concatenate([new["v"], new["p"], new["t"][..., None]], -1)
+        F = _transition(n_cov, h_k, T, V, G, Rn)
+        new["cov"] = F @ c["cov"] @ mT(F) + _recursive_noise(n_cov, h_k, G, Rn, var)
+        return new, None
 
     xs = jnp.concatenate([h[..., None], w, a], -1)  # (..., N, 7)
     xs = jnp.moveaxis(xs, -2, 0)
-    out, ys = jax.lax.scan(step, carry, xs, unroll=unroll)
+    out, _ = jax.lax.scan(step, carry, xs, unroll=unroll)
     out["t"] = jnp.sum(h, -1)
-    if not recursive:
-        out["cov"] = _closed_covariance(out, jnp.moveaxis(ys, 0, -2), h, var, scheme)
     return out
 
 
-def _closed_covariance(out, ys, h, var, scheme: str):
-    """Isotropic closed form (see the module docstring), order (rot, p, v)."""
+def _closed_assemble(out, sums, var, scheme: str):
+    """Isotropic closed form (see the module docstring), order (rot, p, v), from the sums
+    ``su = sum h u``, ``se = sum h e``, ``Suu = sum h u u^T``, ``Sue = sum h e u^T``,
+    ``See = sum h e e^T`` and ``s3 = sum h^3``."""
     qg = var["gyro"][0]
     qa = var["accel"][0]
     qi = jnp.stack(var["integration"], -1)
     t_n = out["t"]
-    v_n, p_n = out["v"], out["p"]
-    v_k, p_k, t_after = ys[..., :3], ys[..., 3:6], ys[..., 6]  # after step k
-    u = v_n[..., None, :] - v_k
-    e = p_n[..., None, :] - p_k - v_k * (t_n[..., None] - t_after)[..., None]
-    hh = h[..., None]
-    su = jnp.sum(hh * u, -2)
-    se = jnp.sum(hh * e, -2)
-    hu, he = hh * u, hh * e
-    Suu = jnp.einsum("...ni,...nj->...ij", hu, u)
-    Sue = jnp.einsum("...ni,...nj->...ij", he, u)  # sum h e u^T
-    See = jnp.einsum("...ni,...nj->...ij", he, e)
-    s3 = jnp.sum(h * h * h, -1)
+    su, se, Suu, Sue, See, s3 = (sums[k] for k in ("su", "se", "Suu", "Sue", "See", "s3"))
     eye = _eye(t_n)
 
     def tr(m):
