@@ -76,12 +76,13 @@ def test_count_macs_of_a_single_conv():
 
 
 @pytest.mark.parametrize("model", ["yznet-yolo-tiny", "yznet-yolo", "yolov5n-like"])
-def test_detector_output_shapes_and_counts(model):
+def test_detector_output_shapes(model):
+    # traced only (eval_shape): the layers themselves run in the tests below
     cfg = DetectorConfig(model=model, num_classes=4, img_size=(96, 128))
-    v = init_detector(jax.random.key(0), cfg)
+    x = jax.ShapeDtypeStruct((2, 96, 128, 3), jnp.float32)
+    v = jax.eval_shape(lambda x: build_detector(cfg).init(jax.random.key(0), x), x)
     assert set(v) == {"params", "batch_stats"}
-    x = jax.random.uniform(jax.random.key(1), (2, 96, 128, 3))
-    outs = jax.jit(lambda v, x: build_detector(cfg).apply(v, x, train=False))(v, x)
+    outs = jax.eval_shape(lambda v, x: build_detector(cfg).apply(v, x, train=False), v, x)
     assert [o.shape for o in outs] == [(2, 12, 16, 3, 9), (2, 6, 8, 3, 9), (2, 3, 4, 3, 9)]
     assert all(o.dtype == jnp.float32 for o in outs)
 
@@ -98,9 +99,15 @@ def test_detector_size_ordering_and_yolov5n_count():
             < counts["yolov5n-like"]["macs"])
 
 
-def test_train_mode_updates_batch_stats_and_eval_is_deterministic():
-    cfg = DetectorConfig(num_classes=2, img_size=(64, 64))
-    v = init_detector(jax.random.key(0), cfg)
+@pytest.fixture(scope="module")
+def small():
+    """A YZNet-YOLO-tiny with 3 classes at 64x64 and its initial variables (shared)."""
+    cfg = DetectorConfig(num_classes=3, img_size=(64, 64))
+    return cfg, init_detector(jax.random.key(0), cfg)
+
+
+def test_train_mode_updates_batch_stats_and_eval_is_deterministic(small):
+    cfg, v = small
     model = build_detector(cfg)
     x = jax.random.uniform(jax.random.key(1), (2, 64, 64, 3))
     _, upd = jax.jit(lambda v, x: model.apply(v, x, train=True, mutable=["batch_stats"]))(v, x)
@@ -115,19 +122,17 @@ def test_train_mode_updates_batch_stats_and_eval_is_deterministic():
         np.testing.assert_array_equal(np.asarray(p), np.asarray(q))
 
 
-def test_dw_impls_give_the_same_detector_outputs():
-    cfg = DetectorConfig(num_classes=2, img_size=(64, 96))
-    v = init_detector(jax.random.key(0), cfg)
-    x = jax.random.uniform(jax.random.key(1), (1, 64, 96, 3))
+def test_dw_impls_give_the_same_detector_outputs(small):
+    cfg, v = small
+    x = jax.random.uniform(jax.random.key(1), (1, 64, 64, 3))
     a = jax.jit(build_detector(cfg).apply)(v, x)
     b = jax.jit(build_detector(cfg.replace(dw_impl="grouped")).apply)(v, x)
     for p, q in zip(a, b, strict=True):
         np.testing.assert_allclose(np.asarray(p), np.asarray(q), atol=1e-4)
 
 
-def test_head_bias_init_follows_yolov5():
-    cfg = DetectorConfig(num_classes=3, img_size=(64, 64))
-    v = init_detector(jax.random.key(0), cfg)
+def test_head_bias_init_follows_yolov5(small):
+    cfg, v = small
     for i, s in enumerate(cfg.strides):
         b = np.asarray(v["params"]["head"][f"m_{i}"]["bias"]).reshape(3, 8)
         fan_in = v["params"]["head"][f"m_{i}"]["kernel"].shape[2]
@@ -137,9 +142,8 @@ def test_head_bias_init_follows_yolov5():
         assert np.all(np.abs(b[:, 5:] - math.log(0.6 / (3 - 0.99))) <= bound + 1e-6)
 
 
-def test_predict_fn_fixed_shapes():
-    cfg = DetectorConfig(num_classes=2, img_size=(64, 64))
-    v = init_detector(jax.random.key(0), cfg)
+def test_predict_fn_fixed_shapes(small):
+    cfg, v = small
     fn = make_predict_fn(cfg, conf_thresh=0.001, max_det=25)
     det = fn(v, jax.random.uniform(jax.random.key(1), (3, 64, 64, 3)))
     assert det.boxes.shape == (3, 25, 4) and det.scores.shape == (3, 25)
