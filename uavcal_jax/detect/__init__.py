@@ -4,6 +4,7 @@ Models, loss, box ops, decoding, NMS and prediction (helper E); data, augmentati
 training and export (helper F).
 """
 
+from uavcal_jax.detect.anchors import anchor_metrics, check_anchors, kmeans_anchors
 from uavcal_jax.detect.boxes import bbox_ciou, box_iou, xywh_to_xyxy, xyxy_to_xywh
 from uavcal_jax.detect.config import YOLOV5_ANCHORS, DetectorConfig
 from uavcal_jax.detect.decode import decode
@@ -16,11 +17,14 @@ __all__ = [
     "YOLOV5_ANCHORS",
     "DetectorConfig",
     "Detections",
+    "anchor_metrics",
     "bbox_ciou",
     "box_iou",
     "build_detector",
+    "check_anchors",
     "decode",
     "init_detector",
+    "kmeans_anchors",
     "make_predict_fn",
     "nms",
     "postprocess",
