@@ -29,3 +29,16 @@ def x64():
     """Run the test body with 64-bit JAX types enabled."""
     with jax.enable_x64(True):
         yield
+
+
+@pytest.fixture(scope="session")
+def xla_cache(tmp_path_factory):
+    """A session-wide persistent XLA compilation cache, so identical computations compiled by
+    several tests (detector training steps, say) compile once."""
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    if not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir",
+                          str(tmp_path_factory.getbasetemp() / "xla_cache"))
+        cc.reset_cache()
+    yield

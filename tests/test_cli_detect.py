@@ -10,18 +10,7 @@ import pytest
 
 from uavcal_jax.cli import main
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _xla_cache(tmp_path_factory):
-    """Share compilations between the steps (a session-wide persistent XLA cache)."""
-    import jax
-    from jax.experimental.compilation_cache import compilation_cache as cc
-
-    if not jax.config.jax_compilation_cache_dir:
-        jax.config.update("jax_compilation_cache_dir",
-                          str(tmp_path_factory.getbasetemp() / "xla_cache"))
-        cc.reset_cache()
-    yield
+pytestmark = pytest.mark.usefixtures("xla_cache")
 
 
 def make_voc(root, n=6, seed=0, size=(72, 104)):

@@ -25,16 +25,7 @@ from uavcal_jax.detect.train import (
 IMG = (64, 96)  # (H, W): tiny, multiples of 32
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _xla_cache(tmp_path_factory):
-    """A session-wide persistent XLA cache: identical computations compile once."""
-    from jax.experimental.compilation_cache import compilation_cache as cc
-
-    if not jax.config.jax_compilation_cache_dir:
-        jax.config.update("jax_compilation_cache_dir",
-                          str(tmp_path_factory.getbasetemp() / "xla_cache"))
-        cc.reset_cache()
-    yield
+pytestmark = pytest.mark.usefixtures("xla_cache")
 
 
 def make_synthetic_yolo(root, n=8, seed=0, size=(72, 104)):
