@@ -1,4 +1,4 @@
-"""Helpers shared by the sub-commands: JSON output and progress bars."""
+"""Helpers shared by the sub-commands: JSON output."""
 
 from __future__ import annotations
 
@@ -6,8 +6,6 @@ import json
 from typing import Any
 
 import numpy as np
-
-from uavcal_jax.progress import progress  # noqa: F401  (re-exported for commands)
 
 
 def _to_builtin(value: Any) -> Any:

@@ -10,8 +10,9 @@ import sys
 import time
 from pathlib import Path
 
-from uavcal_jax.commands.common import print_json, progress
+from uavcal_jax.commands.common import print_json
 from uavcal_jax.errors import DataError
+from uavcal_jax.progress import progress
 
 DESCRIPTION = """\
 Train, evaluate and run the detector of RPEOD (YZNet backbone under a YOLOv5 v7.0 head;
