@@ -38,7 +38,11 @@ Covariance, two ways:
     (``Jr(omega h) Jr(omega h)^T = I`` is taken to hold, a relative error of order
     ``(|omega| h)^2``). For the tangent scheme the rotation rows are then mapped to ``theta``
     with ``Jr(theta_N)^-1``. On EuRoC this agrees with GTSAM's ``preintMeasCov`` to about
-    1e-4 relative and costs a few sums instead of a 9x9 congruence per sample.
+    1e-4 relative and costs a few sums instead of a 9x9 congruence per sample. The sums run
+    forward inside the scan: with ``y_m = dv_{m+1}`` and ``z_m = dp_{m+1} - t_{m+1} y_m``,
+    ``u_m = dv_N - y_m`` and ``e_m = dp_N - t_N y_m - z_m``, so every sum above expands into
+    ``t_N``, the end values and the running sums of ``h y``, ``h z``, ``h y y^T``,
+    ``h z y^T`` and ``h z z^T`` (no per-sample outputs to store and reduce afterwards).
 
 ``"recursive"``
     GTSAM's propagation ``Sigma <- F Sigma F^T + noise`` per sample (9x9, or 15x15 with the
@@ -240,6 +244,16 @@ def _transition(n: int, h, T, V, G, Rn):
 # SIMD-vectorised loops over the windows) instead of loops over tiny trailing 3 / 3x3 axes,
 # and this holds natively batched and under ``jax.vmap`` alike. The arithmetic (operands and
 # the order of every sum and product) is the same as in ``step`` below.
+#
+# On XLA:CPU a step costs about a microsecond per kernel launched, so the structure is
+# tuned by measurement (``experiments/bench_preintegration.py``): per-component carries with
+# ``stage`` barriers beat stacked (9, B) groups and a blocked or parallel-in-time split of
+# the step (heavier kernels get split across threads, whose hand-off costs more than they
+# save at these sizes).
+
+
+#: (i, j) of the upper triangle of a symmetric 3x3 matrix, row-major
+_SYM = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
 def _cmm(x, y):
@@ -306,16 +320,19 @@ def _crot_step(scheme: str, rot, h, w, a, stage):
     return _cmm(R, dR), dRT, V, G, R
 
 
-def _run_components(h, w, a, var: dict, scheme: str, unroll: int) -> dict[str, Any]:
+def _run_components(comps, var: dict, scheme: str, unroll: int) -> dict[str, Any]:
     """:func:`run` for ``covariance="closed"`` with the scan on components (see above)."""
-    dtype = h.dtype
-    batch = h.shape[:-1]
-    z = jnp.zeros(batch, dtype)
-    one = jnp.ones(batch, dtype)
-    z3, z9 = (z,) * 3, (z,) * 9
+    batch = comps[0].shape[:-1]
+    # time-major components (N, ...): the scan reads one contiguous slice of each per
+    # sample, natively batched and under vmap alike
+    xs = tuple(jnp.moveaxis(c, -1, 0) for c in comps)
+    z = jnp.zeros_like(xs[0][0])  # inherits sharding / varying axes (shard_map)
+    one = jnp.ones_like(z)
+    z3, z6, z9 = (z,) * 3, (z,) * 6, (z,) * 9
     eye9 = (one, z, z, z, one, z, z, z, one)
     carry = {"rot": z3 if scheme == "tangent" else eye9, "p": z3, "v": z3, "Hr": z9, "Hv": z9,
-             "Hp": z9, "Hva": z9, "Hpa": z9, "t": z}
+             "Hp": z9, "Hva": z9, "Hpa": z9, "t": z,
+             "Y": z3, "Z": z3, "Syy": z6, "Szy": z9, "Szz": z6}
 
     def add(x, y):
         return tuple(xi + yi for xi, yi in zip(x, y, strict=True))
@@ -341,6 +358,8 @@ def _run_components(h, w, a, var: dict, scheme: str, unroll: int) -> dict[str, A
         p = tuple(c["p"][i] + h_k * c["v"][i] + 0.5 * h_k * h_k * an[i] for i in range(3))
         v = add(c["v"], scale(h_k, an))
         t = c["t"] + h_k
+        zq = tuple(p[i] - t * v[i] for i in range(3))
+        hv, hz = scale(h_k, v), scale(h_k, zq)
         new = {
             "rot": new_rot, "p": p, "v": v,
             "Hr": tuple(x - h_k * g for x, g in zip(_cmm(T, c["Hr"]), G, strict=True)),
@@ -351,58 +370,64 @@ def _run_components(h, w, a, var: dict, scheme: str, unroll: int) -> dict[str, A
             "Hpa": tuple(x + h_k * y - 0.5 * h_k * h_k * r
                          for x, y, r in zip(c["Hpa"], c["Hva"], Rn, strict=True)),
             "t": t,
+            "Y": add(c["Y"], hv), "Z": add(c["Z"], hz),
+            "Syy": add(c["Syy"], tuple(hv[i] * v[j] for i, j in _SYM)),
+            "Szy": add(c["Szy"], tuple(hz[i] * v[j] for i in range(3) for j in range(3))),
+            "Szz": add(c["Szz"], tuple(hz[i] * zq[j] for i, j in _SYM)),
         }  # fmt: skip
-        return new, v + p + (t,)
+        return new, None
 
-    xs = tuple(jnp.moveaxis(x, -1, 0) for x in (h, w[..., 0], w[..., 1], w[..., 2],
-                                                a[..., 0], a[..., 1], a[..., 2]))
-    out, ys = jax.lax.scan(step, carry, xs, unroll=unroll)
-    res: dict[str, Any] = {
-        k: jnp.stack(out[k], -1) if len(out[k]) == 3 else jnp.stack(out[k], -1).reshape(
-            batch + (3, 3))
-        for k in ("rot", "p", "v", "Hr", "Hv", "Hp", "Hva", "Hpa")
-    }
-    res["t"] = jnp.sum(h, -1)
-    # closed-form sums over the samples (axis 0 of ys), still batch-last
-    v_n, p_n, t_n = out["v"], out["p"], res["t"]
-    v_k, p_k, t_after = ys[0:3], ys[3:6], ys[6]
-    hT = xs[0]
-    u = tuple(v_n[i] - v_k[i] for i in range(3))
-    e = tuple(p_n[i] - p_k[i] - v_k[i] * (t_n - t_after) for i in range(3))
-    hu = tuple(hT * x for x in u)
-    he = tuple(hT * x for x in e)
+    out, _ = jax.lax.scan(step, carry, xs, unroll=unroll)
 
-    def outer_sum(x, y):  # sum_n x_i y_j -> (..., 3, 3)
-        return jnp.stack([jnp.sum(x[i] * y[j], 0) for i in range(3) for j in range(3)],
-                         -1).reshape(batch + (3, 3))
+    def vec(parts):
+        return jnp.stack(parts, -1)
+
+    def mat(parts):
+        if len(parts) == 6:  # upper triangle of a symmetric matrix
+            parts = [parts[_SYM.index((min(i, j), max(i, j)))] for i in range(3)
+                     for j in range(3)]
+        return jnp.stack(parts, -1).reshape(batch + (3, 3))
+
+    res: dict[str, Any] = {k: vec(out[k]) if len(out[k]) == 3 else mat(out[k])
+                           for k in ("rot", "p", "v", "Hr", "Hv", "Hp", "Hva", "Hpa")}
+    res["t"] = out["t"]
+    t_n, v, p, Y, Z = _s(out["t"]), res["v"], res["p"], vec(out["Y"]), vec(out["Z"])
+    Syy, Szy, Szz = mat(out["Syy"]), mat(out["Szy"]), mat(out["Szz"])
+
+    def o(x, y):
+        return x[..., :, None] * y[..., None, :]
 
     sums = {
-        "su": jnp.stack([jnp.sum(x, 0) for x in hu], -1),
-        "se": jnp.stack([jnp.sum(x, 0) for x in he], -1),
-        "Suu": outer_sum(hu, u), "Sue": outer_sum(he, u), "See": outer_sum(he, e),
-        "s3": jnp.sum(h * h * h, -1),
+        "su": t_n[..., 0] * v - Y,
+        "se": t_n[..., 0] * (p - Y) - Z,
+        "Suu": t_n * o(v, v) - o(v, Y) - o(Y, v) + Syy,
+        "Sue": t_n * (o(p, v) - o(Y, v) + Syy) - o(p, Y) - o(Z, v) + Szy,
+        "See": (t_n * (o(p, p) - o(p, Y) - o(Y, p) + Szy + mT(Szy)) - o(p, Z) - o(Z, p)
+                + t_n * t_n * Syy + Szz),
+        "s3": jnp.sum(xs[0] * xs[0] * xs[0], 0),
     }
     res["cov"] = _closed_assemble(res, sums, var, scheme)
     return res
 
 
-def run(h, w, a, var: dict, scheme: str, covariance: str, n_cov: int, unroll: int
+def run(comps, var: dict, scheme: str, covariance: str, n_cov: int, unroll: int
         ) -> dict[str, Any]:
-    """Scan over the samples. ``h`` (..., N); ``w``, ``a`` (..., N, 3) (bias-corrected,
-    masked samples zeroed with ``h = 0``). Returns a dict of arrays (see ``preintegrate``)."""
+    """Scan over the samples. ``comps``: seven (..., N) arrays, the hold time and the gyro and
+    accel axes per sample (bias-corrected, masked samples zeroed with hold time 0). Returns a
+    dict of arrays (see ``preintegrate``)."""
     if covariance == "closed":
-        return _run_components(h, w, a, var, scheme, unroll)
-    dtype = h.dtype
-    batch = h.shape[:-1]
-    z3 = jnp.zeros(batch + (3,), dtype)
-    z33 = jnp.zeros(batch + (3, 3), dtype)
-    eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), batch + (3, 3))
+        return _run_components(comps, var, scheme, unroll)
+    h, w, a = comps[0], jnp.stack(comps[1:4], -1), jnp.stack(comps[4:7], -1)
+    z = jnp.zeros_like(h[..., 0])  # inherits sharding / varying axes (shard_map)
+    z3 = jnp.stack([z] * 3, -1)
+    z33 = jnp.stack([z3] * 3, -1)
+    eye = z33 + jnp.eye(3, dtype=h.dtype)
     carry: dict[str, Any] = {
         "rot": z3 if scheme == "tangent" else eye,
         "p": z3, "v": z3,
         "Hr": z33, "Hv": z33, "Hp": z33, "Hva": z33, "Hpa": z33,
     }  # fmt: skip
-    carry["cov"] = jnp.zeros(batch + (n_cov, n_cov), dtype)
+    carry["cov"] = jnp.zeros_like(z[..., None, None]) + jnp.zeros((n_cov, n_cov), h.dtype)
 
     def step(c, x):
         h_k, w_k, a_k = x[..., 0], x[..., 1:4], x[..., 4:7]

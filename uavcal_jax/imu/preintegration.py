@@ -307,8 +307,6 @@ def preintegrate(
 def _preintegrate(dt, gyro, accel, bg, ba, mask, off, noise, *, scheme, covariance,
                   bias_covariance, unroll) -> Preintegrated:
     dtype = dt.dtype
-    w = gyro - bg[..., None, :] - off[..., None, :3]
-    a = accel - ba[..., None, :] - off[..., None, 3:]
     bias_ok = (jnp.all(jnp.isfinite(bg), -1) & jnp.all(jnp.isfinite(ba), -1)
                & jnp.all(jnp.isfinite(off), -1))
     ok = _sample_ok(dt, gyro, accel)
@@ -316,14 +314,17 @@ def _preintegrate(dt, gyro, accel, bg, ba, mask, off, noise, *, scheme, covarian
     bad = ~ok & mask
     n_used = jnp.sum(use, axis=-1, dtype=jnp.int32)
     use = use & bias_ok[..., None]
+    # hold time and the bias- and offset-corrected gyro and accel axes, (..., N) each, with
+    # unused samples zeroed (hold time 0 makes a step an exact no-op)
     zero = jnp.zeros((), dtype)
-    h = jnp.where(use, dt, zero)
-    w = jnp.where(use[..., None], w, zero)
-    a = jnp.where(use[..., None], a, zero)
+    cg, ca = bg + off[..., :3], ba + off[..., 3:]
+    comps = ((jnp.where(use, dt, zero),)
+             + tuple(jnp.where(use, gyro[..., i] - cg[..., i, None], zero) for i in range(3))
+             + tuple(jnp.where(use, accel[..., i] - ca[..., i, None], zero) for i in range(3)))
 
     var = noise.variances(dtype)
     n_cov = 15 if bias_covariance else 9
-    k = _kernel.run(h, w, a, var, scheme, covariance, n_cov, unroll)
+    k = _kernel.run(comps, var, scheme, covariance, n_cov, unroll)
 
     p, v = k["p"], k["v"]
     if scheme == "tangent":
