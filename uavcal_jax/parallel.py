@@ -1,0 +1,62 @@
+"""Spread a batched computation over the host's devices (e.g. the CPU cores).
+
+XLA's CPU backend runs one program on one device and parallelises only large kernels inside
+it; a scan over many small steps (preintegration, filters) therefore uses one core. With
+several host devices (``jax.config.update("jax_num_cpu_devices", n)`` before JAX first
+runs, or ``XLA_FLAGS=--xla_force_host_platform_device_count=n``), :func:`over_devices` splits
+the leading (batch) axis of a computation across them with ``jax.shard_map``, and the
+devices run concurrently.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
+
+__all__ = ["use_cpu_devices", "over_devices"]
+
+
+def use_cpu_devices(n: int) -> int:
+    """Ask for ``n`` CPU devices; must run before JAX's first computation.
+
+    Returns the number of CPU devices JAX then has (``1`` when it was already initialised
+    with one device, e.g. because an array was created earlier in the process).
+    """
+    with contextlib.suppress(RuntimeError):  # backend already initialised: keep what it has
+        jax.config.update("jax_num_cpu_devices", int(n))
+    return len(jax.devices("cpu"))
+
+
+def over_devices(fn: Callable, devices=None) -> Callable:
+    """``fn`` (every input and output batched on axis 0) run with the batch split across
+    ``devices`` (default: all devices of the default backend).
+
+    The batch is padded to a multiple of the device count by repeating its first element
+    (so padding is valid data, never NaN) and the padding is removed from the outputs. With
+    one device ``fn`` is returned unchanged. The result is jitted.
+    """
+    devices = list(jax.devices() if devices is None else devices)
+    if len(devices) == 1:
+        return jax.jit(fn)
+    n = len(devices)
+    mesh = Mesh(np.array(devices), ("batch",))
+    spec = PartitionSpec("batch")
+    sharded = jax.shard_map(fn, mesh=mesh, in_specs=spec, out_specs=spec)
+
+    @jax.jit
+    def run(*args):
+        size = jax.tree_util.tree_leaves(args)[0].shape[0]
+        pad = -size % n
+
+        def padded(x):
+            return x if pad == 0 else jnp.concatenate([x, jnp.repeat(x[:1], pad, axis=0)])
+
+        out = sharded(*jax.tree_util.tree_map(padded, args))
+        return jax.tree_util.tree_map(lambda x: x[:size], out)
+
+    return run
