@@ -32,6 +32,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import platform
@@ -45,9 +46,10 @@ import numpy as np
 
 from uavcal_jax.commands.common import print_json
 from uavcal_jax.commands.detect import parse_imgsz
+from uavcal_jax.detect.anchors import check_anchors
 from uavcal_jax.detect.augment import AugmentConfig
 from uavcal_jax.detect.config import MODELS, DetectorConfig
-from uavcal_jax.detect.datasets import load_dataset
+from uavcal_jax.detect.datasets import load_dataset, split_ids
 from uavcal_jax.detect.train import TrainConfig, load_run, make_predict, train
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "detection" / \
@@ -75,6 +77,19 @@ def measure_fps(det_cfg: DetectorConfig, variables, runs: int = 20, seed: int = 
     median = float(np.median(times))
     return {"fps": 1.0 / median, "latency_ms_median": 1e3 * median,
             "latency_ms_mean": 1e3 * float(np.mean(times)), "compile_s": compile_s}
+
+
+def letterboxed_wh(dataset, imgsz, cfg: TrainConfig) -> np.ndarray:
+    """(M, 2) widths and heights of the training labels in network-input pixels after
+    letterboxing (the split ``train`` uses; validation labels stay unseen)."""
+    h, w = imgsz
+    train_ids = set(split_ids(dataset.image_ids, cfg.val_fraction, cfg.split_seed)[0])
+    sizes = []
+    for r in dataset.records:
+        if r.image_id in train_ids and len(r.boxes):
+            scale = min(w / r.width, h / r.height)
+            sizes.append((r.boxes[:, 2:4] - r.boxes[:, 0:2]) * scale)
+    return np.concatenate(sizes) if sizes else np.zeros((0, 2))
 
 
 def model_counts(det_cfg: DetectorConfig, variables) -> dict:
@@ -149,7 +164,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--eval-every", type=int, default=1, help="[default: 1]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--fps-runs", type=int, default=20, help="timed predictions [default: 20]")
+    p.add_argument("--fps-imgsz", type=parse_imgsz, default=(480, 640), metavar="S|WxH",
+                   help="input size of the speed column (the networks are fully "
+                        "convolutional) [default: 640x480, the paper's]")
     p.add_argument("--resume", action="store_true", help="continue existing runs in OUT")
+    p.add_argument("--no-autoanchor", action="store_true",
+                   help="keep YOLOv5's default anchors (default: check them against the "
+                        "labels and replace them by k-means anchors when recall < 0.98)")
     args = p.parse_args(argv)
 
     out = Path(args.out)
@@ -165,6 +186,10 @@ def main(argv: list[str] | None = None) -> int:
     for model in args.models:
         det_cfg = DetectorConfig(model=model, num_classes=dataset.num_classes,
                                  img_size=args.imgsz)
+        if not args.no_autoanchor:  # YOLOv5's train.py default
+            det_cfg, report = check_anchors(det_cfg, letterboxed_wh(dataset, args.imgsz, cfg),
+                                            seed=args.seed)
+            print(f"== {model}: anchors {report}", file=sys.stderr, flush=True)
         run = out / "runs" / model
         print(f"== {model}: {args.epochs} epochs -> {run}", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
@@ -174,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
                         log=lambda line: print(line, file=sys.stderr, flush=True))
         train_s = time.perf_counter() - t0
         loaded = load_run(run)
-        fps = measure_fps(loaded.det_cfg, loaded.variables, args.fps_runs, args.seed)
+        fps_cfg = dataclasses.replace(loaded.det_cfg, img_size=args.fps_imgsz)
+        fps = measure_fps(fps_cfg, loaded.variables, args.fps_runs, args.seed)
         history = json.loads((run / "metrics.json").read_text())["history"]
         rows.append({
             "model": model, **model_counts(loaded.det_cfg, loaded.variables),
@@ -192,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
               + f", batch {args.batch}, {args.optimizer}"
               + f", input {w}x{h} letterboxed, seed {args.seed}; "
               f"{len(dataset)} images ({dataset.num_boxes} boxes), 80/20 split by image. "
-              f"FPS: batch 1 on {platform.processor() or platform.machine()} "
+              f"FPS: {args.fps_imgsz[1]}x{args.fps_imgsz[0]} input, batch 1 on "
+              f"{platform.processor() or platform.machine()} "
               f"({jax.devices()[0].platform}), jax {jax.__version__}.")
     (out / "results.md").write_text(
         "# Detectors on aerial_cars_kit (RPEOD Table 3 set-up)\n\n"
