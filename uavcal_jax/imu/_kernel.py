@@ -252,6 +252,11 @@ def _transition(n: int, h, T, V, G, Rn):
 # save at these sizes).
 
 
+#: carries kept as one stacked (9, ...) array rather than 9 components: every new entry of
+#: H_rot_bg reads three old ones, so as separate arrays XLA copies the old ones before
+#: overwriting them (9 copies per sample); stacking other groups measured slower
+_STACKED = ("Hr",)
+
 #: (i, j) of the upper triangle of a symmetric 3x3 matrix, row-major
 _SYM = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -333,6 +338,7 @@ def _run_components(comps, var: dict, scheme: str, unroll: int) -> dict[str, Any
     carry = {"rot": z3 if scheme == "tangent" else eye9, "p": z3, "v": z3, "Hr": z9, "Hv": z9,
              "Hp": z9, "Hva": z9, "Hpa": z9, "t": z,
              "Y": z3, "Z": z3, "Syy": z6, "Szy": z9, "Szz": z6}
+    carry = {k: jnp.stack(v) if k in _STACKED else v for k, v in carry.items()}
 
     def add(x, y):
         return tuple(xi + yi for xi, yi in zip(x, y, strict=True))
@@ -352,32 +358,41 @@ def _run_components(comps, var: dict, scheme: str, unroll: int) -> dict[str, Any
         return tuple(out)
 
     def step(c, x):
+        c = {k: tuple(v[i] for i in range(v.shape[0])) if k in _STACKED else v
+             for k, v in c.items()}
         h_k, w_k, a_k = x[0], x[1:4], x[4:7]
         new_rot, T, V, G, Rn = _crot_step(scheme, c["rot"], h_k, w_k, a_k, stage)
         an, VH = stage(_cmv(Rn, a_k), _cmm(V, c["Hr"]))
-        p = tuple(c["p"][i] + h_k * c["v"][i] + 0.5 * h_k * h_k * an[i] for i in range(3))
+        # position-like updates read the *new* velocity-like values (x + h y_old + h^2/2 q
+        # == x + h y_new - h^2/2 q when y_new = y_old + h q), so every carry is dead once
+        # its successor is written and XLA updates it in place instead of copying it
         v = add(c["v"], scale(h_k, an))
+        p = tuple(c["p"][i] + h_k * v[i] - 0.5 * h_k * h_k * an[i] for i in range(3))
         t = c["t"] + h_k
         zq = tuple(p[i] - t * v[i] for i in range(3))
         hv, hz = scale(h_k, v), scale(h_k, zq)
+        Hv = add(c["Hv"], VH)
+        Hva = tuple(x - h_k * r for x, r in zip(c["Hva"], Rn, strict=True))
         new = {
             "rot": new_rot, "p": p, "v": v,
             "Hr": tuple(x - h_k * g for x, g in zip(_cmm(T, c["Hr"]), G, strict=True)),
-            "Hv": add(c["Hv"], VH),
-            "Hp": tuple(hp + h_k * hv + 0.5 * h_k * vh
-                        for hp, hv, vh in zip(c["Hp"], c["Hv"], VH, strict=True)),
-            "Hva": tuple(x - h_k * r for x, r in zip(c["Hva"], Rn, strict=True)),
-            "Hpa": tuple(x + h_k * y - 0.5 * h_k * h_k * r
-                         for x, y, r in zip(c["Hpa"], c["Hva"], Rn, strict=True)),
+            "Hv": Hv,
+            "Hp": tuple(hp + h_k * hv - 0.5 * h_k * vh
+                        for hp, hv, vh in zip(c["Hp"], Hv, VH, strict=True)),
+            "Hva": Hva,
+            "Hpa": tuple(x + h_k * y + 0.5 * h_k * h_k * r
+                         for x, y, r in zip(c["Hpa"], Hva, Rn, strict=True)),
             "t": t,
             "Y": add(c["Y"], hv), "Z": add(c["Z"], hz),
             "Syy": add(c["Syy"], tuple(hv[i] * v[j] for i, j in _SYM)),
             "Szy": add(c["Szy"], tuple(hz[i] * v[j] for i in range(3) for j in range(3))),
             "Szz": add(c["Szz"], tuple(hz[i] * zq[j] for i, j in _SYM)),
         }  # fmt: skip
-        return new, None
+        return {k: jnp.stack(v) if k in _STACKED else v for k, v in new.items()}, None
 
     out, _ = jax.lax.scan(step, carry, xs, unroll=unroll)
+    out = {k: tuple(v[i] for i in range(v.shape[0])) if k in _STACKED else v
+           for k, v in out.items()}
 
     def vec(parts):
         return jnp.stack(parts, -1)
