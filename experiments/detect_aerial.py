@@ -46,10 +46,9 @@ import numpy as np
 
 from uavcal_jax.commands.common import print_json
 from uavcal_jax.commands.detect import parse_imgsz
-from uavcal_jax.detect.anchors import check_anchors
 from uavcal_jax.detect.augment import AugmentConfig
 from uavcal_jax.detect.config import MODELS, DetectorConfig
-from uavcal_jax.detect.datasets import load_dataset, split_ids
+from uavcal_jax.detect.datasets import load_dataset
 from uavcal_jax.detect.train import TrainConfig, load_run, make_predict, train
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "detection" / \
@@ -77,19 +76,6 @@ def measure_fps(det_cfg: DetectorConfig, variables, runs: int = 20, seed: int = 
     median = float(np.median(times))
     return {"fps": 1.0 / median, "latency_ms_median": 1e3 * median,
             "latency_ms_mean": 1e3 * float(np.mean(times)), "compile_s": compile_s}
-
-
-def letterboxed_wh(dataset, imgsz, cfg: TrainConfig) -> np.ndarray:
-    """(M, 2) widths and heights of the training labels in network-input pixels after
-    letterboxing (the split ``train`` uses; validation labels stay unseen)."""
-    h, w = imgsz
-    train_ids = set(split_ids(dataset.image_ids, cfg.val_fraction, cfg.split_seed)[0])
-    sizes = []
-    for r in dataset.records:
-        if r.image_id in train_ids and len(r.boxes):
-            scale = min(w / r.width, h / r.height)
-            sizes.append((r.boxes[:, 2:4] - r.boxes[:, 0:2]) * scale)
-    return np.concatenate(sizes) if sizes else np.zeros((0, 2))
 
 
 def model_counts(det_cfg: DetectorConfig, variables) -> dict:
@@ -179,17 +165,13 @@ def main(argv: list[str] | None = None) -> int:
     dataset = load_dataset(args.data, args.format)
     common = dict(epochs=args.epochs, batch_size=args.batch, seed=args.seed,
                   warmup_epochs=args.warmup_epochs, eval_every=args.eval_every,
-                  augment=AugmentConfig(mosaic=args.mosaic))
+                  augment=AugmentConfig(mosaic=args.mosaic), autoanchor=not args.no_autoanchor)
     cfg = TrainConfig.yolov5(**common) if args.optimizer == "sgd" else TrainConfig.paper(
         **common)
     rows = []
     for model in args.models:
         det_cfg = DetectorConfig(model=model, num_classes=dataset.num_classes,
                                  img_size=args.imgsz)
-        if not args.no_autoanchor:  # YOLOv5's train.py default
-            det_cfg, report = check_anchors(det_cfg, letterboxed_wh(dataset, args.imgsz, cfg),
-                                            seed=args.seed)
-            print(f"== {model}: anchors {report}", file=sys.stderr, flush=True)
         run = out / "runs" / model
         print(f"== {model}: {args.epochs} epochs -> {run}", file=sys.stderr, flush=True)
         t0 = time.perf_counter()

@@ -136,3 +136,16 @@ def test_anchor_metrics_and_kmeans():
     assert len(new_cfg.anchors) == 3 and all(len(a) == 3 for a in new_cfg.anchors)
     same_cfg, report = check_anchors(cfg, rng.normal([40, 40], 5, (50, 2)))
     assert same_cfg is cfg and not report["replaced"]
+
+
+def test_label_sizes_are_letterboxed():
+    from types import SimpleNamespace
+
+    from uavcal_jax.detect.anchors import label_sizes
+
+    rec = SimpleNamespace(boxes=np.array([[10.0, 20.0, 30.0, 30.0]]), width=200, height=100)
+    empty = SimpleNamespace(boxes=np.zeros((0, 4)), width=50, height=50)
+    wh = label_sizes(SimpleNamespace(records=[rec, empty]), (64, 96))
+    # scale min(96 / 200, 64 / 100) = 0.48 for a 20 x 10 box
+    np.testing.assert_allclose(wh, [[9.6, 4.8]])
+    assert label_sizes(SimpleNamespace(records=[empty]), (64, 96)).shape == (0, 2)

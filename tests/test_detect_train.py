@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from uavcal_jax.detect.anchors import anchor_metrics, label_sizes
 from uavcal_jax.detect.config import DetectorConfig
 from uavcal_jax.detect.datasets import load_dataset
 from uavcal_jax.detect.train import (
@@ -109,6 +110,14 @@ def test_tiny_training_loss_falls_and_writes_the_run(tiny_runs):
     assert summary["epochs"] == 4 and summary["best_epoch"] in (1, 2, 3, 4)
     loaded = load_run(run_a)
     assert loaded.det_cfg.num_classes == 2 and loaded.det_cfg.img_size == IMG
+    # autoanchor: the saved anchors recall the training labels at least as well as the
+    # defaults, and replace them only when the defaults recall less than 98 %
+    wh = label_sizes(ds.subset(split["train"]), IMG)
+    bpr_default, bpr_saved = (anchor_metrics(a, wh)[0] for a in (det.anchors,
+                                                                  loaded.det_cfg.anchors))
+    assert bpr_saved >= bpr_default
+    assert (tuple(map(tuple, loaded.det_cfg.anchors)) == tuple(map(tuple, det.anchors))) == (
+        bpr_default >= 0.98)
 
 
 def test_resume_reproduces_uninterrupted_run(tiny_runs):

@@ -125,6 +125,9 @@ def register(subparsers) -> None:
     p.add_argument("--mosaic", type=_fraction, default=0.0,
                    help="probability of a 4-image mosaic [default: 0]")
     p.add_argument("--no-ema", action="store_true", help="evaluate/keep raw weights, no EMA")
+    p.add_argument("--no-autoanchor", action="store_true",
+                   help="keep the default anchors (default: YOLOv5's check against the "
+                        "training labels, k-means anchors when best possible recall < 0.98)")
     p.add_argument("--val-data", metavar="DIR", default=None,
                    help="validate on this data set instead of the fixed split of --data")
     p.add_argument("--val-fraction", type=_fraction, default=0.2,
@@ -255,7 +258,8 @@ def run_train(args) -> int:
                   augment=None if args.no_augment else AugmentConfig(mosaic=args.mosaic),
                   ema=not args.no_ema, val_fraction=args.val_fraction,
                   split_seed=args.split_seed, seed=args.seed, eval_every=args.eval_every,
-                  select_metric=args.select_metric, workers=args.workers)
+                  select_metric=args.select_metric, workers=args.workers,
+                  autoanchor=not args.no_autoanchor)
     if args.lr is not None:
         common["lr"] = args.lr
     if args.schedule is not None:

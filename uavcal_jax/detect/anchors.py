@@ -75,6 +75,15 @@ def kmeans_anchors(wh, n: int = 9, anchor_t: float = 4.0, gen: int = 1000,
     return k[np.argsort(k.prod(1))]
 
 
+def label_sizes(dataset, img_size: tuple[int, int]) -> np.ndarray:
+    """(M, 2) widths and heights of all of ``dataset``'s boxes in network-input pixels after
+    letterboxing each image into ``img_size`` = (H, W) (what the anchors are matched to)."""
+    h, w = img_size
+    sizes = [(r.boxes[:, 2:4] - r.boxes[:, 0:2]) * min(w / r.width, h / r.height)
+             for r in dataset.records if len(r.boxes)]
+    return np.concatenate(sizes).astype(np.float64) if sizes else np.zeros((0, 2))
+
+
 def check_anchors(config: DetectorConfig, wh, gen: int = 1000, seed: int = 0,
                   min_bpr: float = 0.98) -> tuple[DetectorConfig, dict]:
     """``config`` with anchors that fit the labels: unchanged when their best possible

@@ -57,6 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from uavcal_jax.detect.anchors import check_anchors, label_sizes
 from uavcal_jax.detect.augment import AugmentConfig, unletterbox_boxes
 from uavcal_jax.detect.checkpoint import Checkpoints
 from uavcal_jax.detect.config import DetectorConfig
@@ -115,6 +116,7 @@ class TrainConfig:
     select_metric: str = "map50_95"
     workers: int = 2
     cache: bool = True
+    autoanchor: bool = True
 
     def __post_init__(self):
         if self.optimizer not in OPTIMIZERS:
@@ -478,6 +480,11 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
             train_set, val_set = prepare_split(dataset, cfg, val_dataset)
     else:
         train_set, val_set = prepare_split(dataset, cfg, val_dataset)
+        wh = label_sizes(train_set, det_cfg.img_size)
+        if cfg.autoanchor and len(wh):  # YOLOv5's train.py: fit anchors to the labels
+            det_cfg, report = check_anchors(det_cfg, wh, seed=cfg.seed)
+            if log is not None:
+                log(json.dumps({"autoanchor": report}))
     run.mkdir(parents=True, exist_ok=True)
     config_doc = {
         "detector": det_cfg.to_dict(),
