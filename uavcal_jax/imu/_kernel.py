@@ -137,13 +137,16 @@ def _horner(coeffs, x):
     return out
 
 
-def coefficients(s):
+def coefficients(s, stage=None):
     """``(a, b, c, d, db, dc)`` of :func:`uavcal_jax.geometry.so3.series_coefficients` at
     ``s = |theta|^2``, computed from quarter-angle polynomials and two angle doublings
-    (no sin, cos or sqrt). Accurate to rounding for ``|theta| <= 1.85 pi``."""
+    (no sin, cos or sqrt). Accurate to rounding for ``|theta| <= 1.85 pi``. ``stage``
+    (the scan's, optional) materialises the two polynomials every coefficient uses."""
     x2 = s * (1.0 / 16.0)
     a4 = _horner(_SINC, x2)
     b4 = _horner(_COSC, x2)
+    if stage is not None:
+        ((a4, b4),) = stage((a4, b4))
     a2 = a4 * (1.0 - x2 * b4)  # sin(2x)/(2x) = (sin x / x) cos x
     b2 = 0.5 * a4 * a4  # (1 - cos 2x)/(2x)^2 = (sin x / x)^2 / 2
     a = a2 * (1.0 - 0.25 * s * b2)
@@ -294,7 +297,7 @@ def _crot_step(scheme: str, rot, h, w, a, stage):
     if scheme == "tangent":
         th = rot
         s = th[0] * th[0] + th[1] * th[1] + th[2] * th[2]
-        (ca, cb, cc, cd, cdb, cdc), = stage(coefficients(s))
+        (ca, cb, cc, cd, cdb, cdc), = stage(coefficients(s, stage))
         R, Jr, Ji = stage(_ci_plus(th, ca, cb), _ci_plus(th, -cb, cc),
                           _ci_plus(th, jnp.full_like(cd, 0.5), cd))
         c, = stage(_cmv(Ji, w))
