@@ -245,8 +245,8 @@ def _transition(n: int, h, T, V, G, Rn):
 # 3 arrays and a 3x3 matrix a row-major tuple of 9 arrays, each of the batch shape ``...``.
 # Every operation in the loop body is then element-wise over the whole batch (contiguous,
 # SIMD-vectorised loops over the windows) instead of loops over tiny trailing 3 / 3x3 axes,
-# and this holds natively batched and under ``jax.vmap`` alike. The arithmetic (operands and
-# the order of every sum and product) is the same as in ``step`` below.
+# and this holds natively batched and under ``jax.vmap`` alike. The arithmetic is that of
+# ``step`` in :func:`run` (a few updates regrouped, see below: equal to rounding).
 #
 # On XLA:CPU a step costs about a microsecond per kernel launched, so the structure is
 # tuned by measurement (``experiments/bench_preintegration.py``): per-component carries with
