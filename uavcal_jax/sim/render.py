@@ -317,6 +317,17 @@ def _untile(a, b: RayBundle):
     return a.reshape(b.tiles_y * b.tile_h, b.tiles_x * b.tile_w, *rest)[: b.height, : b.width]
 
 
+def _bilinear_packed(q, fu, fv):
+    """Bilinear blend at fractions ``(fu, fv)`` of the 2x2 texels packed in ``q`` (uint32,
+    bytes t00, t01, t10, t11 from the lowest up); float32 in 0..255."""
+    t00 = (q & 255).astype(jnp.float32)
+    t01 = ((q >> 8) & 255).astype(jnp.float32)
+    t10 = ((q >> 16) & 255).astype(jnp.float32)
+    t11 = (q >> 24).astype(jnp.float32)
+    top = t00 + fu * (t01 - t00)
+    return top + fv * ((t10 + fu * (t11 - t10)) - top)
+
+
 def _shade(texture, detail, dx, dy, dz, depth, k, boxes, faces, color: str):
     """Texture (bilinear, from packed 2x2 texel quads) x face colours x light, per hit.
 
@@ -342,13 +353,7 @@ def _shade(texture, detail, dx, dy, dz, depth, k, boxes, faces, color: str):
     fu, fv = tu - u0, tv - v0
     base = faces["off"][face] + v0.astype(jnp.int32) * faces["nu"][face] + u0.astype(jnp.int32)
     base, fu, fv = barrier((base, fu, fv))
-    q = barrier(texture[base])
-    t00 = (q & 255).astype(jnp.float32)
-    t01 = ((q >> 8) & 255).astype(jnp.float32)
-    t10 = ((q >> 16) & 255).astype(jnp.float32)
-    t11 = (q >> 24).astype(jnp.float32)
-    top = t00 + fu * (t01 - t00)
-    lum = top + fv * ((t10 + fu * (t11 - t10)) - top)  # 0..255; colours carry the 1/255
+    lum = _bilinear_packed(barrier(texture[base]), fu, fv)  # 0..255; colours carry the 1/255
     # fine tiled detail near the camera (the atlas is blurry there), faded out with distance
     # before it would alias; each face reads the detail tile at its own offset
     w_detail = jnp.clip(DETAIL_NEAR_FAR[1] - depth, 0.0, DETAIL_NEAR_FAR[1] - DETAIL_NEAR_FAR[0])
@@ -360,13 +365,7 @@ def _shade(texture, detail, dx, dy, dz, depth, k, boxes, faces, color: str):
     dfu, dfv = du - du0, dv - dv0
     dbase = (dv0.astype(jnp.int32) & (n_det - 1)) * n_det + (du0.astype(jnp.int32) & (n_det - 1))
     dbase, dfu, dfv, w_detail = barrier((dbase, dfu, dfv, w_detail))
-    dq = barrier(detail[dbase])
-    d00 = (dq & 255).astype(jnp.float32)
-    d01 = ((dq >> 8) & 255).astype(jnp.float32)
-    d10 = ((dq >> 16) & 255).astype(jnp.float32)
-    d11 = (dq >> 24).astype(jnp.float32)
-    dtop = d00 + dfu * (d01 - d00)
-    dlum = dtop + dfv * ((d10 + dfu * (d11 - d10)) - dtop)
+    dlum = _bilinear_packed(barrier(detail[dbase]), dfu, dfv)
     lum = jnp.clip(lum + w_detail * (dlum - 127.5), 0.0, 255.0)
     if color == "gray":
         return jnp.clip(faces["a"][0][face] + faces["ab"][0][face] * lum, 0.0, 1.0)
