@@ -255,11 +255,6 @@ def _transition(n: int, h, T, V, G, Rn):
 # save at these sizes).
 
 
-#: carries kept as one stacked (9, ...) array rather than 9 components: every new entry of
-#: H_rot_bg reads three old ones, so as separate arrays XLA copies the old ones before
-#: overwriting them (9 copies per sample); stacking other groups measured slower
-_STACKED = ("Hr",)
-
 #: (i, j) of the upper triangle of a symmetric 3x3 matrix, row-major
 _SYM = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -341,7 +336,10 @@ def _run_components(comps, var: dict, scheme: str, unroll: int) -> dict[str, Any
     carry = {"rot": z3 if scheme == "tangent" else eye9, "p": z3, "v": z3, "Hr": z9, "Hv": z9,
              "Hp": z9, "Hva": z9, "Hpa": z9, "t": z,
              "Y": z3, "Z": z3, "Syy": z6, "Szy": z9, "Szz": z6}
-    carry = {k: jnp.stack(v) if k in _STACKED else v for k, v in carry.items()}
+    # H_rot_bg is carried as one stacked (9, ...) array: each new entry reads three old ones,
+    # so as separate arrays XLA would copy the old ones before overwriting them (9 copies per
+    # sample); stacking other groups measured slower
+    carry["Hr"] = jnp.stack(carry["Hr"])
 
     def add(x, y):
         return tuple(xi + yi for xi, yi in zip(x, y, strict=True))
@@ -361,8 +359,7 @@ def _run_components(comps, var: dict, scheme: str, unroll: int) -> dict[str, Any
         return tuple(out)
 
     def step(c, x):
-        c = {k: tuple(v[i] for i in range(v.shape[0])) if k in _STACKED else v
-             for k, v in c.items()}
+        c = dict(c, Hr=tuple(c["Hr"]))
         h_k, w_k, a_k = x[0], x[1:4], x[4:7]
         new_rot, T, V, G, Rn = _crot_step(scheme, c["rot"], h_k, w_k, a_k, stage)
         an, VH = stage(_cmv(Rn, a_k), _cmm(V, c["Hr"]))
@@ -391,11 +388,11 @@ def _run_components(comps, var: dict, scheme: str, unroll: int) -> dict[str, Any
             "Szy": add(c["Szy"], tuple(hz[i] * v[j] for i in range(3) for j in range(3))),
             "Szz": add(c["Szz"], tuple(hz[i] * zq[j] for i, j in _SYM)),
         }  # fmt: skip
-        return {k: jnp.stack(v) if k in _STACKED else v for k, v in new.items()}, None
+        new["Hr"] = jnp.stack(new["Hr"])
+        return new, None
 
     out, _ = jax.lax.scan(step, carry, xs, unroll=unroll)
-    out = {k: tuple(v[i] for i in range(v.shape[0])) if k in _STACKED else v
-           for k, v in out.items()}
+    out["Hr"] = tuple(out["Hr"])
 
     def vec(parts):
         return jnp.stack(parts, -1)
