@@ -315,7 +315,8 @@ def _crot_step(scheme: str, rot, h, w, a, stage):
     R = rot
     phi = tuple(x * h for x in w)
     s = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
-    ca, cb, cc = coefficients(s)[:3]
+    # materialised once: otherwise every entry of dR, G and R dR recomputes them
+    (ca, cb, cc), = stage(coefficients(s)[:3])
     dR = _ci_plus(phi, ca, cb)
     G = _ci_plus(phi, -cb, cc)
     V = tuple(-h * x for x in _cross_rows(R, a))
