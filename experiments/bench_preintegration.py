@@ -17,7 +17,11 @@ Reported (seconds are wall-clock, medians of ``--repeats`` runs after a warm-up 
 throughput = windows x samples / seconds):
 
 * ``compile_s``: tracing + XLA compilation of the batched call (once per configuration);
-* ``ours_batch_s``, ``ours_samples_per_s``: the batched call on all devices;
+* ``ours_batch_s``, ``ours_samples_per_s``: the batched call on all devices, its inputs
+  already split across them (:func:`uavcal_jax.parallel.shard_batch`), as the one-device
+  call has its inputs on its device;
+* ``ours_unplaced_batch_s``, ``ours_unplaced_samples_per_s``: the same with the inputs on the
+  first device, so that each call also copies the other devices' shares;
 * ``ours_1dev_batch_s``, ``ours_1dev_samples_per_s``: the same call on one device;
 * ``gtsam_s``, ``gtsam_samples_per_s``: GTSAM's Python loop over the same windows;
 * ``ratio`` (all devices) and ``ratio_1dev``: our throughput over GTSAM's;
@@ -48,12 +52,11 @@ import warnings
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax.commands.common import print_json
 from uavcal_jax.imu import PreintegrationNoise, interval_batch, preintegrate
-from uavcal_jax.parallel import over_devices, use_cpu_devices
+from uavcal_jax.parallel import over_devices, shard_batch, use_cpu_devices
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "euroc_v101_micro"
 
@@ -115,16 +118,25 @@ def gtsam_run(dt, gyro, accel, bg, ba, noise):
 
 
 def time_ours(dt, gyro, accel, bg, ba, noise, repeats: int, scheme: str, devices):
-    """(compile_s, median batch seconds, output) of the vmapped call on ``devices``."""
+    """(compile_s, median batch seconds, median batch seconds with the inputs on the first
+    device, output) of the vmapped call on ``devices``.
+
+    The inputs are first placed where the call reads them (:func:`shard_batch`: each device
+    holds its share, as the one-device call holds all of it); the second figure also counts
+    copying each share off the first device, as a call on freshly loaded data does."""
     batched = jax.vmap(lambda d, g, a, b1, b2: preintegrate(d, g, a, b1, b2, noise=noise,
                                                             scheme=scheme))
     fn = over_devices(batched, devices)
-    args = [jnp.asarray(x) for x in (dt, gyro, accel, bg, ba)]  # placed by the call
+    host = [np.asarray(x) for x in (dt, gyro, accel, bg, ba)]
+    args = shard_batch(host, devices)
     t0 = time.perf_counter()
     compiled = fn.lower(*args).compile()
     compile_s = time.perf_counter() - t0
     out = jax.block_until_ready(compiled(*args))  # warm-up
-    return compile_s, median_time(compiled, *args, repeats=repeats), out
+    batch_s = median_time(compiled, *args, repeats=repeats)
+    on_first = [jax.device_put(x, devices[0]) for x in host]
+    jax.block_until_ready(fn(*on_first))
+    return compile_s, batch_s, median_time(fn, *on_first, repeats=repeats), out
 
 
 def single_window_latency(dt, gyro, accel, bg, ba, noise, scheme: str, n: int = 50) -> float:
@@ -173,14 +185,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"only {n_devices} device(s) available", file=sys.stderr)
 
     with jax.enable_x64(True):
-        _, batch1_s, _ = time_ours(dt, gyro, accel, bg, ba, noise, args.repeats, args.scheme,
-                                   all_devices[:1])
-        compile_s, batch_s, out64 = time_ours(dt, gyro, accel, bg, ba, noise, args.repeats,
-                                              args.scheme, all_devices)
+        _, batch1_s, _, _ = time_ours(dt, gyro, accel, bg, ba, noise, args.repeats,
+                                      args.scheme, all_devices[:1])
+        compile_s, batch_s, unplaced_s, out64 = time_ours(dt, gyro, accel, bg, ba, noise,
+                                                          args.repeats, args.scheme, all_devices)
         result["dtype"] = "float64"
         result["compile_s"] = compile_s
         result["ours_batch_s"] = batch_s
         result["ours_samples_per_s"] = n_samples_total / batch_s
+        result["ours_unplaced_batch_s"] = unplaced_s
+        result["ours_unplaced_samples_per_s"] = n_samples_total / unplaced_s
         result["ours_1dev_batch_s"] = batch1_s
         result["ours_1dev_samples_per_s"] = n_samples_total / batch1_s
         result["single_window_latency_s"] = single_window_latency(dt, gyro, accel, bg, ba,
@@ -188,14 +202,15 @@ def main(argv: list[str] | None = None) -> int:
         out64 = jax.tree_util.tree_map(np.asarray, out64)
     result["all_valid"] = bool(np.all(out64.valid))
     print(f"ours  (float64): {batch_s * 1e3:8.1f} ms for {n_samples_total} samples on "
-          f"{len(all_devices)} device(s) ({result['ours_samples_per_s'] / 1e6:.2f} M samples/s), "
+          f"{len(all_devices)} device(s) ({result['ours_samples_per_s'] / 1e6:.2f} M samples/s; "
+          f"{unplaced_s * 1e3:.1f} ms with the inputs on one device), "
           f"{batch1_s * 1e3:.1f} ms on one device; compile {compile_s:.1f} s, "
           f"single window {result['single_window_latency_s'] * 1e3:.2f} ms", file=sys.stderr)
 
     if not args.no_float32:
         with jax.enable_x64(False):
-            c32, b32, _ = time_ours(*(np.asarray(x, np.float32) for x in (dt, gyro, accel, bg, ba)),
-                                    noise, args.repeats, args.scheme, all_devices)
+            inputs32 = (np.asarray(x, np.float32) for x in (dt, gyro, accel, bg, ba))
+            c32, b32, _, _ = time_ours(*inputs32, noise, args.repeats, args.scheme, all_devices)
         result["float32_compile_s"] = c32
         result["float32_batch_s"] = b32
         result["float32_samples_per_s"] = n_samples_total / b32
@@ -212,6 +227,8 @@ def main(argv: list[str] | None = None) -> int:
         result["gtsam_samples_per_s"] = n_samples_total / gtsam_s
         result["ratio"] = result["ours_samples_per_s"] / result["gtsam_samples_per_s"]
         result["ratio_1dev"] = result["ours_1dev_samples_per_s"] / result["gtsam_samples_per_s"]
+        result["ratio_unplaced"] = (result["ours_unplaced_samples_per_s"]
+                                    / result["gtsam_samples_per_s"])
         if "float32_samples_per_s" in result:
             result["ratio_float32"] = result["float32_samples_per_s"] / result[
                 "gtsam_samples_per_s"]

@@ -56,3 +56,39 @@ def test_one_device_is_plain_jit():
     f = over_devices(lambda x: jnp.cumsum(x, axis=1), devices=jax.devices()[:1])
     x = np.arange(12.0).reshape(3, 4)
     np.testing.assert_array_equal(np.asarray(f(x)), np.cumsum(x, axis=1))
+
+
+SHARD_SCRIPT = textwrap.dedent(
+    """
+    import json
+    import jax, numpy as np
+    from uavcal_jax.parallel import use_cpu_devices, over_devices, shard_batch
+    n = use_cpu_devices(2)
+    x = np.arange(24.0).reshape(6, 4)
+    odd = np.arange(20.0).reshape(5, 4)
+    placed, placed_odd = shard_batch((x, odd))
+    f = over_devices(lambda a: a * 2.0 + 1.0)
+    print(json.dumps({
+        "devices": n,
+        "split": sorted(d.id for d in placed.devices()),
+        "shard_rows": sorted(s.data.shape[0] for s in placed.addressable_shards),
+        "odd_whole": [s.data.shape[0] for s in placed_odd.addressable_shards],
+        "from_one_device": bool(np.array_equal(
+            np.asarray(f(jax.device_put(x, jax.devices()[0]))), x * 2.0 + 1.0)),
+        "same": bool(np.array_equal(np.asarray(f(placed)), x * 2.0 + 1.0)
+                     and np.array_equal(np.asarray(f(placed_odd)), odd * 2.0 + 1.0)),
+    }))
+    """
+)
+
+
+def test_shard_batch_places_halves_and_gives_the_same_result():
+    res = subprocess.run([sys.executable, "-c", SHARD_SCRIPT], capture_output=True, text=True,
+                         timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert out["devices"] == 2
+    assert out["split"] == [0, 1] and out["shard_rows"] == [3, 3]
+    assert out["odd_whole"] == [5, 5]  # not a multiple of 2: whole on each, the call pads
+    assert out["from_one_device"]  # inputs committed to one device are moved, not refused
+    assert out["same"]
