@@ -17,7 +17,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 __all__ = ["use_cpu_devices", "over_devices", "shard_batch"]
 
@@ -50,12 +50,13 @@ def shard_batch(tree, devices=None):
     if len(devices) == 1:
         return jax.device_put(tree, devices[0])
     mesh = _batch_mesh(devices)
-    split = jax.sharding.NamedSharding(mesh, PartitionSpec("batch"))
-    whole = jax.sharding.NamedSharding(mesh, PartitionSpec())
+    split = NamedSharding(mesh, PartitionSpec("batch"))
+    whole = NamedSharding(mesh, PartitionSpec())
 
     def place(x):
         x = jnp.asarray(x)
-        return jax.device_put(x, split if x.shape[0] % len(devices) == 0 else whole)
+        even = x.ndim > 0 and x.shape[0] % len(devices) == 0
+        return jax.device_put(x, split if even else whole)
 
     return jax.tree_util.tree_map(place, tree)
 

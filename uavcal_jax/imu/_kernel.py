@@ -252,7 +252,10 @@ def _transition(n: int, h, T, V, G, Rn):
 # tuned by measurement (``experiments/bench_preintegration.py``): per-component carries with
 # ``stage`` barriers beat stacked (9, B) groups and a blocked or parallel-in-time split of
 # the step (heavier kernels get split across threads, whose hand-off costs more than they
-# save at these sizes).
+# save at these sizes). A carry packed into a few stacked arrays, each written by one kernel
+# (XLA:CPU fuses a concatenation of at most 8 operands, so nested stacks of 8), cuts the
+# kernels per step from ~180 to ~20 but measured 1.5x slower: under ``vmap`` a scan carries
+# non-scalar leaves batch-major, and the fused concatenations do not vectorise.
 
 
 #: (i, j) of the upper triangle of a symmetric 3x3 matrix, row-major
