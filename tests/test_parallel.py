@@ -42,11 +42,16 @@ SCRIPT = textwrap.dedent(
 )
 
 
-def test_two_devices_match_one():
-    res = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True,
+def _run_fresh(script: str) -> dict:
+    """Run ``script`` in a fresh interpreter; its last stdout line as JSON."""
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
-    out = json.loads(res.stdout.strip().splitlines()[-1])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_two_devices_match_one():
+    out = _run_fresh(SCRIPT)
     assert out["devices"] == 2
     assert out["shapes_equal"] and out["valid"]
     assert out["diff"] <= 1e-12, out
@@ -83,10 +88,7 @@ SHARD_SCRIPT = textwrap.dedent(
 
 
 def test_shard_batch_places_halves_and_gives_the_same_result():
-    res = subprocess.run([sys.executable, "-c", SHARD_SCRIPT], capture_output=True, text=True,
-                         timeout=600)
-    assert res.returncode == 0, res.stderr[-2000:]
-    out = json.loads(res.stdout.strip().splitlines()[-1])
+    out = _run_fresh(SHARD_SCRIPT)
     assert out["devices"] == 2
     assert out["split"] == [0, 1] and out["shard_rows"] == [3, 3]
     assert out["odd_whole"] == [5, 5]  # not a multiple of 2: whole on each, the call pads
