@@ -86,33 +86,6 @@ def hat(v):
     )
 
 
-def i_plus(v, alpha, beta):
-    """``I + alpha W + beta W^2``, ``W = hat(v)`` (exp, Jr, Jr^-1 by the coefficients)."""
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    s = x * x + y * y + z * z
-    bxy, bxz, byz = beta * x * y, beta * x * z, beta * y * z
-    ax, ay, az = alpha * x, alpha * y, alpha * z
-    return jnp.stack(
-        [
-            jnp.stack([1.0 + beta * (x * x - s), bxy - az, bxz + ay], -1),
-            jnp.stack([bxy + az, 1.0 + beta * (y * y - s), byz - ax], -1),
-            jnp.stack([bxz - ay, byz + ax, 1.0 + beta * (z * z - s)], -1),
-        ],
-        -2,
-    )
-
-
-def cross(a, b):
-    return jnp.stack(
-        [
-            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
-        ],
-        -1,
-    )
-
-
 def _s(x):
     """Scalar (...,) -> (..., 1, 1) for scaling matrices."""
     return x[..., None, None]
@@ -162,43 +135,6 @@ def coefficients(s, stage=None):
     return a, b, c, d, db, dc
 
 
-# ---- one step ----------------------------------------------------------------------------
-
-
-def _rotation_step(scheme: str, rot, h, w, a):
-    """Returns (new_rot, T, V, G, Rn) for one sample."""
-    hs = _s(h)
-    if scheme == "tangent":
-        th = rot
-        s = jnp.sum(th * th, -1)
-        ca, cb, cc, cd, cdb, cdc = coefficients(s)
-        R = i_plus(th, ca, cb)
-        Jr = i_plus(th, -cb, cc)
-        Ji = i_plus(th, jnp.full_like(cd, 0.5), cd)
-        c = mv(Ji, w)  # omega in the tangent space at theta
-        # D = d(Jr(theta) c)/dtheta at fixed c; d(Jr^-1 omega)/dtheta = -Jr^-1 D.
-        u = cross(th, c)
-        q = cross(th, u)
-        g = -2.0 * cdb[..., None] * u + 2.0 * cdc[..., None] * q - 2.0 * cc[..., None] * c
-        D = (
-            g[..., :, None] * th[..., None, :]
-            + _s(cc) * th[..., :, None] * c[..., None, :]
-            + _s(cc * jnp.sum(th * c, -1)) * _eye(th)
-            + _s(cb) * hat(c)
-        )
-        T = _eye(th) - hs * mm(Ji, D)
-        V = -hs * mm(jnp.cross(R, a[..., None, :]), Jr)  # -h R hat(a) Jr
-        return th + h[..., None] * c, T, V, Ji, R
-    R = rot
-    phi = w * h[..., None]
-    s = jnp.sum(phi * phi, -1)
-    ca, cb, cc = coefficients(s)[:3]
-    dR = i_plus(phi, ca, cb)
-    G = i_plus(phi, -cb, cc)
-    V = -hs * jnp.cross(R, a[..., None, :])  # -h R hat(a)
-    return mm(R, dR), mT(dR), V, G, R
-
-
 def _recursive_noise(n: int, h, G, Rn, var):
     """Discrete noise covariance added per step, internal order (rot, p, v[, bg, ba])."""
     qg = jnp.stack(var["gyro"], -1)
@@ -241,12 +177,15 @@ def _transition(n: int, h, T, V, G, Rn):
 
 # ---- component-wise ("batch-last") form of the scan -----------------------------------
 #
-# For the closed-form covariance the scan is written on *components*: a vector is a tuple of
+# The rotation step is written on *components* (both paths use it; the recursive one then
+# stacks T, V, G, Rn into matrices for its 9x9 / 15x15 propagation), and for the closed-form
+# covariance so is the whole scan: a vector is a tuple of
 # 3 arrays and a 3x3 matrix a row-major tuple of 9 arrays, each of the batch shape ``...``.
 # Every operation in the loop body is then element-wise over the whole batch (contiguous,
 # SIMD-vectorised loops over the windows) instead of loops over tiny trailing 3 / 3x3 axes,
-# and this holds natively batched and under ``jax.vmap`` alike. The arithmetic is that of
-# ``step`` in :func:`run` (a few updates regrouped, see below: equal to rounding).
+# and this holds natively batched and under ``jax.vmap`` alike. The mean and Jacobian
+# updates are those of the recursive ``step`` in :func:`run` (a few regrouped, see below:
+# equal to rounding).
 #
 # On XLA:CPU a step costs about a microsecond per kernel launched, so the structure is
 # tuned by measurement (``experiments/bench_preintegration.py``): per-component carries with
@@ -256,6 +195,26 @@ def _transition(n: int, h, T, V, G, Rn):
 # (XLA:CPU fuses a concatenation of at most 8 operands, so nested stacks of 8), cuts the
 # kernels per step from ~180 to ~20 but measured 1.5x slower: under ``vmap`` a scan carries
 # non-scalar leaves batch-major, and the fused concatenations do not vectorise.
+
+
+def _vec_parts(v):
+    """(..., 3) -> 3 components."""
+    return tuple(v[..., i] for i in range(3))
+
+
+def _mat_parts(m):
+    """(..., 3, 3) -> 9 components, row-major."""
+    return tuple(m[..., i, j] for i in range(3) for j in range(3))
+
+
+def _vec(parts):
+    """3 components -> (..., 3)."""
+    return jnp.stack(parts, -1)
+
+
+def _mat(parts):
+    """9 row-major components -> (..., 3, 3)."""
+    return jnp.stack(parts, -1).reshape(parts[0].shape + (3, 3))
 
 
 #: (i, j) of the upper triangle of a symmetric 3x3 matrix, row-major
@@ -290,15 +249,22 @@ def _ci_plus(v, alpha, beta):
             bxz - ay, byz + ax, 1.0 + beta * (z * z - s))
 
 
+def _no_stage(*groups):
+    """``stage`` for the recursive path: nothing to materialise."""
+    return groups
+
+
 def _crot_step(scheme: str, rot, h, w, a, stage):
-    """:func:`_rotation_step` on components."""
+    """The rotation part of one sample's step, on components: ``(new_rot, T, V, G, Rn)``
+    (see the module docstring); ``rot`` is ``theta`` (3) or ``R`` (9, row-major)."""
     if scheme == "tangent":
         th = rot
         s = th[0] * th[0] + th[1] * th[1] + th[2] * th[2]
         (ca, cb, cc, cd, cdb, cdc), = stage(coefficients(s, stage))
         R, Jr, Ji = stage(_ci_plus(th, ca, cb), _ci_plus(th, -cb, cc),
                           _ci_plus(th, jnp.full_like(cd, 0.5), cd))
-        c, = stage(_cmv(Ji, w))
+        c, = stage(_cmv(Ji, w))  # omega in the tangent space at theta
+        # D = d(Jr(theta) c)/dtheta at fixed c; d(Jr^-1 omega)/dtheta = -Jr^-1 D
         u = _ccross(th, c)
         q = _ccross(th, u)
         g = tuple(-2.0 * cdb * u[i] + 2.0 * cdc * q[i] - 2.0 * cc * c[i] for i in range(3))
@@ -329,7 +295,6 @@ def _crot_step(scheme: str, rot, h, w, a, stage):
 
 def _run_components(comps, var: dict, scheme: str, unroll: int) -> dict[str, Any]:
     """:func:`run` for ``covariance="closed"`` with the scan on components (see above)."""
-    batch = comps[0].shape[:-1]
     # time-major components (N, ...): the scan reads one contiguous slice of each per
     # sample, natively batched and under vmap alike
     xs = tuple(jnp.moveaxis(c, -1, 0) for c in comps)
@@ -398,20 +363,15 @@ def _run_components(comps, var: dict, scheme: str, unroll: int) -> dict[str, Any
     out, _ = jax.lax.scan(step, carry, xs, unroll=unroll)
     out["Hr"] = tuple(out["Hr"])
 
-    def vec(parts):
-        return jnp.stack(parts, -1)
+    def sym(parts):  # upper triangle of a symmetric matrix -> (..., 3, 3)
+        return _mat([parts[_SYM.index((min(i, j), max(i, j)))] for i in range(3)
+                     for j in range(3)])
 
-    def mat(parts):
-        if len(parts) == 6:  # upper triangle of a symmetric matrix
-            parts = [parts[_SYM.index((min(i, j), max(i, j)))] for i in range(3)
-                     for j in range(3)]
-        return jnp.stack(parts, -1).reshape(batch + (3, 3))
-
-    res: dict[str, Any] = {k: vec(out[k]) if len(out[k]) == 3 else mat(out[k])
+    res: dict[str, Any] = {k: _vec(out[k]) if len(out[k]) == 3 else _mat(out[k])
                            for k in ("rot", "p", "v", "Hr", "Hv", "Hp", "Hva", "Hpa")}
     res["t"] = out["t"]
-    t_n, v, p, Y, Z = _s(out["t"]), res["v"], res["p"], vec(out["Y"]), vec(out["Z"])
-    Syy, Szy, Szz = mat(out["Syy"]), mat(out["Szy"]), mat(out["Szz"])
+    t_n, v, p, Y, Z = _s(out["t"]), res["v"], res["p"], _vec(out["Y"]), _vec(out["Z"])
+    Syy, Szy, Szz = sym(out["Syy"]), _mat(out["Szy"]), sym(out["Szz"])
 
     def o(x, y):
         return x[..., :, None] * y[..., None, :]
@@ -436,7 +396,7 @@ def run(comps, var: dict, scheme: str, covariance: str, n_cov: int, unroll: int
     dict of arrays (see ``preintegrate``)."""
     if covariance == "closed":
         return _run_components(comps, var, scheme, unroll)
-    h, w, a = comps[0], jnp.stack(comps[1:4], -1), jnp.stack(comps[4:7], -1)
+    h = comps[0]
     z = jnp.zeros_like(h[..., 0])  # inherits sharding / varying axes (shard_map)
     z3 = jnp.stack([z] * 3, -1)
     z33 = jnp.stack([z3] * 3, -1)
@@ -449,10 +409,13 @@ def run(comps, var: dict, scheme: str, covariance: str, n_cov: int, unroll: int
     carry["cov"] = jnp.zeros_like(z[..., None, None]) + jnp.zeros((n_cov, n_cov), h.dtype)
 
     def step(c, x):
-        h_k, w_k, a_k = x[..., 0], x[..., 1:4], x[..., 4:7]
+        h_k, w_k, a_k = x[0], x[1:4], x[4:7]
         hs = _s(h_k)
-        new_rot, T, V, G, Rn = _rotation_step(scheme, c["rot"], h_k, w_k, a_k)
-        an = mv(Rn, a_k)
+        rot = _vec_parts(c["rot"]) if scheme == "tangent" else _mat_parts(c["rot"])
+        new_rot, T, V, G, Rn = _crot_step(scheme, rot, h_k, w_k, a_k, _no_stage)
+        new_rot = _vec(new_rot) if scheme == "tangent" else _mat(new_rot)
+        T, V, G, Rn = (_mat(m) for m in (T, V, G, Rn))
+        an = mv(Rn, _vec(a_k))
         hv = h_k[..., None]
         VH = mm(V, c["Hr"])
         new = {
@@ -469,8 +432,7 @@ def run(comps, var: dict, scheme: str, covariance: str, n_cov: int, unroll: int
         new["cov"] = F @ c["cov"] @ mT(F) + _recursive_noise(n_cov, h_k, G, Rn, var)
         return new, None
 
-    xs = jnp.concatenate([h[..., None], w, a], -1)  # (..., N, 7)
-    xs = jnp.moveaxis(xs, -2, 0)
+    xs = tuple(jnp.moveaxis(c, -1, 0) for c in comps)  # time-major (N, ...) each
     out, _ = jax.lax.scan(step, carry, xs, unroll=unroll)
     out["t"] = jnp.sum(h, -1)
     return out
