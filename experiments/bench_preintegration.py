@@ -54,7 +54,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from uavcal_jax.commands.common import print_json
+from uavcal_jax.argtypes import print_json
 from uavcal_jax.imu import PreintegrationNoise, interval_batch, preintegrate
 from uavcal_jax.parallel import over_devices, shard_batch, use_cpu_devices
 

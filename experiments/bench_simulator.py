@@ -35,8 +35,7 @@ from pathlib import Path
 
 import jax
 
-from uavcal_jax.commands.common import print_json
-from uavcal_jax.commands.simulate import parse_resolution
+from uavcal_jax.argtypes import parse_resolution, print_json
 from uavcal_jax.sim.simulate import SimConfig, simulate_report
 
 #: The issue's budget for 60 s of EuRoC-like data, seconds.

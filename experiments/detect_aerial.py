@@ -49,8 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from uavcal_jax.commands.common import print_json
-from uavcal_jax.commands.detect import parse_imgsz
+from uavcal_jax.argtypes import parse_imgsz, print_json
 from uavcal_jax.detect.augment import AugmentConfig
 from uavcal_jax.detect.config import MODELS, DetectorConfig
 from uavcal_jax.detect.datasets import load_dataset

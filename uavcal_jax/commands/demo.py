@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from uavcal_jax.commands.common import print_json
+from uavcal_jax.argtypes import print_json
 
 #: The demo flight: a few seconds of procedural flight at half EuRoC resolution.
 DEMO_DURATION_S = 3.0

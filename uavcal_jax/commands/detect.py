@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from uavcal_jax.commands.common import print_json
+from uavcal_jax.argtypes import fraction, parse_imgsz, positive_int, print_json
 from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress
 
@@ -52,37 +52,6 @@ examples:
   uavcal detect predict 'frames/*.png' --checkpoint runs/raccoon --out out/pred --conf 0.4"""
 
 
-def parse_imgsz(text: str) -> tuple[int, int]:
-    """``"640"`` -> (640, 640); ``"640x480"`` (width x height) -> (480, 640) as (H, W)."""
-    try:
-        parts = [int(v) for v in text.lower().replace(",", "x").split("x")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected S or WxH, e.g. 640x480, got {text!r}") \
-            from None
-    if len(parts) == 1:
-        parts = parts * 2
-    if len(parts) != 2:
-        raise argparse.ArgumentTypeError(f"expected S or WxH, got {text!r}")
-    w, h = parts
-    if w % 32 or h % 32 or w < 32 or h < 32:
-        raise argparse.ArgumentTypeError(f"image size must be multiples of 32, got {text!r}")
-    return h, w
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return value
-
-
-def _fraction(text: str) -> float:
-    value = float(text)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
-    return value
-
-
 def register(subparsers) -> None:
     from uavcal_jax.detect.config import MODELS
     from uavcal_jax.detect.datasets import FORMATS
@@ -103,11 +72,11 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="RUN", help="the run folder to write")
     p.add_argument("--model", choices=MODELS, default="yznet-yolo-tiny",
                    help="detector [default: yznet-yolo-tiny]")
-    p.add_argument("--epochs", type=_positive_int, default=100, help="[default: 100]")
+    p.add_argument("--epochs", type=positive_int, default=100, help="[default: 100]")
     p.add_argument("--imgsz", type=parse_imgsz, default=(480, 640), metavar="S|WxH",
                    help="network input, letterboxed: S for square, WxH otherwise (multiples "
                         "of 32) [default: 640x480, the paper's]")
-    p.add_argument("--batch", type=_positive_int, default=8, help="batch size [default: 8]")
+    p.add_argument("--batch", type=positive_int, default=8, help="batch size [default: 8]")
     p.add_argument("--optimizer", choices=("rmsprop", "sgd"), default="rmsprop",
                    help="rmsprop: the paper (lr 0.01, momentum 0.9, weight decay 1e-5); sgd: "
                         "YOLOv5's (lr 0.01, Nesterov momentum 0.937, weight decay 5e-4, "
@@ -122,7 +91,7 @@ def register(subparsers) -> None:
                         "[default: 3]")
     p.add_argument("--no-augment", action="store_true",
                    help="no augmentation (letterbox only)")
-    p.add_argument("--mosaic", type=_fraction, default=0.0,
+    p.add_argument("--mosaic", type=fraction, default=0.0,
                    help="probability of a 4-image mosaic [default: 0]")
     p.add_argument("--no-ema", action="store_true", help="evaluate/keep raw weights, no EMA")
     p.add_argument("--no-autoanchor", action="store_true",
@@ -130,18 +99,18 @@ def register(subparsers) -> None:
                         "training labels, k-means anchors when best possible recall < 0.98)")
     p.add_argument("--val-data", metavar="DIR", default=None,
                    help="validate on this data set instead of the fixed split of --data")
-    p.add_argument("--val-fraction", type=_fraction, default=0.2,
+    p.add_argument("--val-fraction", type=fraction, default=0.2,
                    help="fraction of images held out for validation [default: 0.2]")
     p.add_argument("--split-seed", type=int, default=0, help="seed of the split [default: 0]")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of initialisation, shuffling and augmentation [default: 0]")
-    p.add_argument("--eval-every", type=_positive_int, default=1,
+    p.add_argument("--eval-every", type=positive_int, default=1,
                    help="validate every N epochs (and after the last) [default: 1]")
     p.add_argument("--select-metric", choices=("map50_95", "map50", "fitness"),
                    default="map50_95", help="best-model criterion [default: map50_95]")
-    p.add_argument("--max-steps", type=_positive_int, default=None, metavar="N",
+    p.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
                    help="cap batches per epoch (quick trials)")
-    p.add_argument("--workers", type=_positive_int, default=2,
+    p.add_argument("--workers", type=positive_int, default=2,
                    help="data loading threads [default: 2]")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN from its last checkpoint (its saved configuration and "
@@ -167,7 +136,7 @@ def register(subparsers) -> None:
                    help="confidence threshold [default: 0.001, as YOLOv5 val]")
     p.add_argument("--iou", type=float, default=0.6, help="NMS IoU threshold [default: 0.6]")
     p.add_argument("--voc07", action="store_true", help="VOC 2007 11-point interpolation")
-    p.add_argument("--batch", type=_positive_int, default=8, help="[default: 8]")
+    p.add_argument("--batch", type=positive_int, default=8, help="[default: 8]")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_eval)
 
@@ -182,8 +151,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--conf", type=float, default=0.25, help="[default: 0.25]")
     p.add_argument("--iou", type=float, default=0.45, help="NMS IoU threshold [default: 0.45]")
-    p.add_argument("--max-det", type=_positive_int, default=300, help="[default: 300]")
-    p.add_argument("--batch", type=_positive_int, default=1, help="[default: 1]")
+    p.add_argument("--max-det", type=positive_int, default=300, help="[default: 300]")
+    p.add_argument("--batch", type=positive_int, default=1, help="[default: 1]")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_predict)
 

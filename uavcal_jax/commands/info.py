@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from uavcal_jax.commands.common import print_json
+from uavcal_jax.argtypes import print_json
 from uavcal_jax.errors import DataRepairWarning
 
 DESCRIPTION = """\

@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from uavcal_jax.commands.common import print_json
+from uavcal_jax.argtypes import parse_resolution, positive, positive_int, print_json
 from uavcal_jax.errors import DataError
 
 DESCRIPTION = """\
@@ -29,32 +29,6 @@ examples:
   uavcal simulate --out out/imu_only --no-frames --no-imu-noise --duration 60"""
 
 
-def parse_resolution(text: str) -> tuple[int, int]:
-    """``"752x480"`` -> ``(752, 480)``."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected WIDTHxHEIGHT, e.g. 752x480, got {text!r}") from None
-    if w < 8 or h < 8:
-        raise argparse.ArgumentTypeError(f"resolution must be at least 8x8, got {text!r}")
-    return w, h
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return value
-
-
 def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
     """The options that build a :class:`~uavcal_jax.sim.simulate.SimConfig` (shared with
     other commands that simulate)."""
@@ -67,7 +41,7 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--start", type=float, default=None, metavar="S",
                    help="with --trajectory: start S seconds after the file's first timestamp "
                         "(relative, not the file's absolute clock) [default: 0]")
-    g.add_argument("--duration", type=_positive, default=10.0, metavar="S",
+    g.add_argument("--duration", type=positive, default=10.0, metavar="S",
                    help="seconds of flight to simulate [default: 10]; with --trajectory, "
                         "--start + --duration must lie within the file")
     g.add_argument("--seed", type=int, default=0,
@@ -79,9 +53,9 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
                         "(same field of view) [default: 752x480]")
     g.add_argument("--color", choices=("gray", "rgb"), default="gray",
                    help="8-bit gray frames (like EuRoC) or RGB [default: gray]")
-    g.add_argument("--camera-rate", type=_positive, default=20.0, metavar="HZ",
+    g.add_argument("--camera-rate", type=positive, default=20.0, metavar="HZ",
                    help="frame rate of cam0/cam1 [default: 20]")
-    g.add_argument("--imu-rate", type=_positive, default=200.0, metavar="HZ",
+    g.add_argument("--imu-rate", type=positive, default=200.0, metavar="HZ",
                    help="IMU and ground-truth rate [default: 200]")
     g.add_argument("--no-imu-noise", action="store_true",
                    help="exact IMU: no white noise, no bias (default: EuRoC ADIS16448 noise "
@@ -131,9 +105,9 @@ def register(subparsers) -> None:
                    help="replace DIR if it holds a previous simulation")
     add_sim_arguments(p)
     g = p.add_argument_group("speed (do not change the output)")
-    g.add_argument("--batch", type=_positive_int, default=8, metavar="N",
+    g.add_argument("--batch", type=positive_int, default=8, metavar="N",
                    help="frames rendered per compiled call [default: 8]")
-    g.add_argument("--workers", type=_positive_int, default=2, metavar="N",
+    g.add_argument("--workers", type=positive_int, default=2, metavar="N",
                    help="threads encoding PNGs while the next batch renders [default: 2]")
     p.add_argument("--json", action="store_true",
                    help="print one JSON summary line and no progress bar")

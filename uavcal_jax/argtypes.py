@@ -1,0 +1,81 @@
+"""Command-line value types and JSON output shared by the ``uavcal`` commands and the
+experiment scripts (so neither imports the other)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+import numpy as np
+
+__all__ = ["fraction", "parse_imgsz", "parse_resolution", "positive", "positive_int",
+           "print_json"]
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    """``"752x480"`` -> ``(752, 480)`` as ``(width, height)``."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT, e.g. 752x480, got {text!r}") from None
+    if w < 8 or h < 8:
+        raise argparse.ArgumentTypeError(f"resolution must be at least 8x8, got {text!r}")
+    return w, h
+
+
+def parse_imgsz(text: str) -> tuple[int, int]:
+    """``"640"`` -> (640, 640); ``"640x480"`` (width x height) -> (480, 640) as (H, W)."""
+    try:
+        parts = [int(v) for v in text.lower().replace(",", "x").split("x")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected S or WxH, e.g. 640x480, got {text!r}") \
+            from None
+    if len(parts) == 1:
+        parts = parts * 2
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"expected S or WxH, got {text!r}")
+    w, h = parts
+    if w % 32 or h % 32 or w < 32 or h < 32:
+        raise argparse.ArgumentTypeError(f"image size must be multiples of 32, got {text!r}")
+    return h, w
+
+
+def positive(text: str) -> float:
+    """A float > 0."""
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An int >= 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """A float in [0, 1]."""
+    value = float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
+    return value
+
+
+def _to_builtin(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if hasattr(value, "__fspath__"):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def print_json(obj: Any) -> None:
+    """Print ``obj`` as one JSON object on one line (numpy values converted)."""
+    print(json.dumps(obj, default=_to_builtin))
