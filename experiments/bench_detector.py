@@ -62,7 +62,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from uavcal_jax.detect.config import DetectorConfig
+from uavcal_jax.detect.config import (
+    DW_IMPLS,
+    EVAL_PREDICT,
+    SERVE_PREDICT,
+    DetectorConfig,
+)
 from uavcal_jax.detect.counting import classifier_counts, detector_counts
 from uavcal_jax.detect.layers import depthwise_grouped, depthwise_shift
 from uavcal_jax.detect.model import init_detector
@@ -98,11 +103,13 @@ def bench_model(model: str, args, image) -> dict:
     else:
         variables = init_detector(jax.random.key(args.seed), cfg)
     res = {"model": model, **detector_counts(cfg)}
-    settings = [("", args.conf_thresh, args.max_det)]
-    if args.worst_case:
-        settings.append(("worst_", 0.001, 300))
-    for prefix, conf, max_det in settings:
-        fn = make_predict_fn(cfg, conf_thresh=conf, max_det=max_det)
+    settings = [("", SERVE_PREDICT.replace(conf_thresh=args.conf_thresh, max_det=args.max_det))]
+    if args.worst_case:  # the evaluation's low threshold and full output, one label per box
+        settings.append(("worst_", SERVE_PREDICT.replace(conf_thresh=EVAL_PREDICT.conf_thresh,
+                                                         max_det=EVAL_PREDICT.max_det)))
+    for prefix, predict_cfg in settings:
+        conf, max_det = predict_cfg.conf_thresh, predict_cfg.max_det
+        fn = make_predict_fn(cfg, predict_cfg)
         t0 = time.perf_counter()
         compiled = fn.lower(variables, image).compile()
         compile_s = time.perf_counter() - t0
@@ -148,13 +155,15 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
     p.add_argument("--runs", type=int, default=30, help="timed calls per model [30]")
-    p.add_argument("--h", type=int, default=480)
-    p.add_argument("--w", type=int, default=640)
+    p.add_argument("--h", type=int, default=DetectorConfig.img_size[0])
+    p.add_argument("--w", type=int, default=DetectorConfig.img_size[1])
     p.add_argument("--num-classes", type=int, default=5, help="[5: the aerial car classes]")
-    p.add_argument("--conf-thresh", type=float, default=0.25)
-    p.add_argument("--max-det", type=int, default=300)
-    p.add_argument("--dw-impl", default="shift", choices=("shift", "grouped"))
-    p.add_argument("--worst-case", action="store_true", help="also time conf 0.001, 300 dets")
+    p.add_argument("--conf-thresh", type=float, default=SERVE_PREDICT.conf_thresh)
+    p.add_argument("--max-det", type=int, default=SERVE_PREDICT.max_det)
+    p.add_argument("--dw-impl", default=DetectorConfig.dw_impl, choices=DW_IMPLS)
+    p.add_argument("--worst-case", action="store_true",
+                   help=f"also time conf {EVAL_PREDICT.conf_thresh:g}, {EVAL_PREDICT.max_det} "
+                        "dets")
     p.add_argument("--variables", help="trained variables (.msgpack) for the first model")
     p.add_argument("--dw-sweep", action="store_true")
     p.add_argument("--seed", type=int, default=0)

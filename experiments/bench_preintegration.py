@@ -55,7 +55,8 @@ import jax
 import numpy as np
 
 from uavcal_jax.argtypes import print_json
-from uavcal_jax.imu import PreintegrationNoise, interval_batch, preintegrate
+from uavcal_jax.geometry.frames import GRAVITY, GRAVITY_W
+from uavcal_jax.imu import EUROC_ADIS16448, interval_batch, preintegrate
 from uavcal_jax.parallel import over_devices, shard_batch, use_cpu_devices
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "euroc_v101_micro"
@@ -74,7 +75,7 @@ def load_windows(n_windows: int, n_samples: int, seed: int = 0):
         starts = np.linspace(0, n_total, n_windows).astype(int)
         batch = interval_batch(imu, starts=imu.t_ns[starts], ends=imu.t_ns[starts + n_samples])
         gidx = np.clip(np.searchsorted(gt.t_ns, imu.t_ns[starts]), 0, len(gt) - 1)
-        noise = PreintegrationNoise.from_calibration(seq.imu_calibration)
+        noise = seq.imu_calibration.noise
         return (batch.dt, batch.gyro, batch.accel, gt.bias_gyro[gidx], gt.bias_accel[gidx],
                 noise, "EuRoC V1_01 IMU (real)")
     rng = np.random.default_rng(seed)
@@ -83,9 +84,9 @@ def load_windows(n_windows: int, n_samples: int, seed: int = 0):
     phase = rng.uniform(0, 6, (n_windows, 1, 1))
     gyro = 0.5 * np.sin(2.0 * t[None, :, None] + phase) + rng.normal(0, 0.01, (n_windows,
                                                                                n_samples, 3))
-    accel = np.array([0.0, 0.0, 9.81]) + np.cos(1.3 * t[None, :, None] + phase)
+    accel = -np.asarray(GRAVITY_W) + np.cos(1.3 * t[None, :, None] + phase)
     zeros = np.zeros((n_windows, 3))
-    return dt, gyro, accel, zeros, zeros, PreintegrationNoise(), "synthetic"
+    return dt, gyro, accel, zeros, zeros, EUROC_ADIS16448, "synthetic"
 
 
 def median_time(fn, *args, repeats: int) -> float:
@@ -102,7 +103,7 @@ def gtsam_run(dt, gyro, accel, bg, ba, noise):
     """GTSAM's preintegration of every window from Python; returns (seconds, pims)."""
     import gtsam
 
-    params = gtsam.PreintegrationParams.MakeSharedU(9.81)
+    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY)
     params.setGyroscopeCovariance(np.eye(3) * noise.gyro_noise_density**2)
     params.setAccelerometerCovariance(np.eye(3) * noise.accel_noise_density**2)
     params.setIntegrationCovariance(np.zeros((3, 3)))

@@ -17,10 +17,15 @@ proportion); ``within_budget`` compares it with the 180 s budget.
 The last line printed is one JSON object, e.g.
 ``{"seconds_total": 150.2, "pairs": 1200, "pairs_per_s": 8.0, ...}``.
 
+The frames go through the default camera model (exposure x gain, shot and read noise, motion
+blur; :mod:`uavcal_jax.sim.sensor`); ``--ideal-camera`` times the noise-free, sharp render
+alone, the cost the camera model adds being the difference.
+
 Usage::
 
     python experiments/bench_simulator.py                  # the issue's 60 s benchmark
     python experiments/bench_simulator.py --duration 5     # a quick run
+    python experiments/bench_simulator.py --ideal-camera   # without the camera model
 """
 
 from __future__ import annotations
@@ -36,7 +41,8 @@ from pathlib import Path
 import jax
 
 from uavcal_jax.argtypes import parse_resolution, print_json
-from uavcal_jax.sim.simulate import SimConfig, simulate_report
+from uavcal_jax.sim.config import COLORS, SimConfig
+from uavcal_jax.sim.simulate import simulate_report
 
 #: The issue's budget for 60 s of EuRoC-like data, seconds.
 BUDGET_S = 180.0
@@ -45,18 +51,24 @@ BUDGET_S = 180.0
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=60.0, help="flight seconds [60]")
-    p.add_argument("--resolution", type=parse_resolution, default=(752, 480), metavar="WxH")
-    p.add_argument("--color", choices=("gray", "rgb"), default="gray")
+    p.add_argument("--resolution", type=parse_resolution, default=SimConfig.resolution,
+                   metavar="WxH")
+    p.add_argument("--color", choices=COLORS, default=SimConfig.color)
     p.add_argument("--batch", type=int, default=SimConfig.batch_size, help="frames per call")
     p.add_argument("--workers", type=int, default=SimConfig.png_workers,
                    help="PNG encoder threads")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=SimConfig.seed)
+    p.add_argument("--ideal-camera", action="store_true",
+                   help="noise-free, sharp frames (no exposure, noise or blur)")
+    p.add_argument("--blur-samples", type=int, default=SimConfig.blur_samples,
+                   help="sub-exposures averaged for motion blur")
     p.add_argument("--keep", type=Path, metavar="DIR", help="keep the output in DIR")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
 
     config = SimConfig(duration=args.duration, resolution=args.resolution, color=args.color,
-                       seed=args.seed, batch_size=args.batch, png_workers=args.workers)
+                       seed=args.seed, batch_size=args.batch, png_workers=args.workers,
+                       ideal_camera=args.ideal_camera, blur_samples=args.blur_samples)
     tmp = None
     if args.keep is not None:
         out = args.keep
@@ -84,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
         "flight_seconds": args.duration,
         "resolution": list(args.resolution),
         "color": args.color,
+        "ideal_camera": args.ideal_camera,
+        "blur_samples": None if args.ideal_camera else args.blur_samples,
         "imu_samples": counts["imu"],
         "target_rows": counts.get("target_rows", 0),
         "output_mb": round(size / 1e6, 1),

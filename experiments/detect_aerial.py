@@ -51,9 +51,17 @@ import numpy as np
 
 from uavcal_jax.argtypes import parse_imgsz, print_json
 from uavcal_jax.detect.augment import AugmentConfig
-from uavcal_jax.detect.config import MODELS, DetectorConfig
-from uavcal_jax.detect.datasets import load_dataset
-from uavcal_jax.detect.train import TrainConfig, load_run, make_predict, train
+from uavcal_jax.detect.config import (
+    MODELS,
+    OPTIMIZERS,
+    SERVE_PREDICT,
+    DetectorConfig,
+    TrainConfig,
+)
+from uavcal_jax.detect.datasets import FORMATS, load_dataset
+from uavcal_jax.detect.predict import make_predict_fn
+from uavcal_jax.detect.run import load_run
+from uavcal_jax.detect.train import train
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "detection" / \
     "aerial_cars_kit"
@@ -63,8 +71,9 @@ TABLE_ORDER = ("yznet-yolo-tiny", "yznet-yolo", "yolov5n-like")
 
 
 def measure_fps(det_cfg: DetectorConfig, variables, runs: int = 20, seed: int = 0) -> dict:
-    """Frames per second of predict (network + decode + NMS), batch 1, after a warm-up."""
-    fn = make_predict(det_cfg, 0.25, 0.45, 300, multi_label=False)
+    """Frames per second of predict (network + decode + NMS, the serving thresholds), batch 1,
+    after a warm-up."""
+    fn = make_predict_fn(det_cfg, SERVE_PREDICT)
     h, w = det_cfg.img_size
     images = jax.random.uniform(jax.random.PRNGKey(seed), (1, h, w, 3), jnp.float32)
     t0 = time.perf_counter()
@@ -138,25 +147,30 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", default=str(DEFAULT_DATA), help="a detection data set folder "
                    "[default: ../shared/data/detection/aerial_cars_kit]")
-    p.add_argument("--format", default=None, help="voc|yolo|coco|sim [default: detected]")
+    p.add_argument("--format", choices=FORMATS, default=None, help="[default: detected]")
     p.add_argument("--out", default="out/detect_aerial", help="[default: out/detect_aerial]")
     p.add_argument("--models", nargs="+", choices=MODELS, default=list(TABLE_ORDER))
     p.add_argument("--epochs", type=int, default=8, help="the shared budget [default: 8]")
     p.add_argument("--max-steps", type=int, default=None,
                    help="cap batches per epoch (smoke tests)")
-    p.add_argument("--imgsz", type=parse_imgsz, default=(480, 640), metavar="S|WxH",
-                   help="[default: 640x480, the paper's]")
-    p.add_argument("--batch", type=int, default=8, help="[default: 8, the paper's]")
-    p.add_argument("--optimizer", choices=("rmsprop", "sgd"), default="rmsprop",
-                   help="rmsprop: the paper's recipe; sgd: YOLOv5's [default: rmsprop]")
-    p.add_argument("--warmup-epochs", type=float, default=1.0, help="[default: 1]")
-    p.add_argument("--mosaic", type=float, default=0.0, help="[default: 0]")
-    p.add_argument("--eval-every", type=int, default=1, help="[default: 1]")
-    p.add_argument("--seed", type=int, default=0)
+    h, w = DetectorConfig.img_size
+    p.add_argument("--imgsz", type=parse_imgsz, default=DetectorConfig.img_size,
+                   metavar="S|WxH", help=f"[default: {w}x{h}, the paper's]")
+    p.add_argument("--batch", type=int, default=TrainConfig.batch_size,
+                   help="[default: %(default)s, the paper's]")
+    p.add_argument("--optimizer", choices=OPTIMIZERS, default=TrainConfig.optimizer,
+                   help="rmsprop: the paper's recipe; sgd: YOLOv5's [default: %(default)s]")
+    p.add_argument("--warmup-epochs", type=float, default=1.0,
+                   help="shorter than a full run's, for the small budget [default: 1]")
+    p.add_argument("--mosaic", type=float, default=AugmentConfig.mosaic,
+                   help="[default: %(default)s]")
+    p.add_argument("--eval-every", type=int, default=TrainConfig.eval_every,
+                   help="[default: %(default)s]")
+    p.add_argument("--seed", type=int, default=TrainConfig.seed)
     p.add_argument("--fps-runs", type=int, default=20, help="timed predictions [default: 20]")
-    p.add_argument("--fps-imgsz", type=parse_imgsz, default=(480, 640), metavar="S|WxH",
-                   help="input size of the speed column (the networks are fully "
-                        "convolutional) [default: 640x480, the paper's]")
+    p.add_argument("--fps-imgsz", type=parse_imgsz, default=DetectorConfig.img_size,
+                   metavar="S|WxH", help="input size of the speed column (the networks are "
+                   f"fully convolutional) [default: {w}x{h}, the paper's]")
     p.add_argument("--resume", action="store_true", help="continue existing runs in OUT")
     p.add_argument("--no-autoanchor", action="store_true",
                    help="keep YOLOv5's default anchors (default: check them against the "

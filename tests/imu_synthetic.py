@@ -9,7 +9,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-G = np.array([0.0, 0.0, -9.81])
+from uavcal_jax.geometry.frames import GRAVITY_W
+
+G = np.asarray(GRAVITY_W)
 
 
 def _hat(v):

@@ -8,14 +8,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from uavcal_jax.data import euroc_rig as rig
 from uavcal_jax.geometry import camera as C
 
 
 def _points_in_view(cam_index: int, n: int, seed: int) -> np.ndarray:
     """Random camera-frame points whose projections fall inside the EuRoC image."""
     rng = np.random.default_rng(seed)
-    intr = (C.EUROC_CAM0_INTRINSICS, C.EUROC_CAM1_INTRINSICS)[cam_index]
-    dist = (C.EUROC_CAM0_DISTORTION, C.EUROC_CAM1_DISTORTION)[cam_index]
+    intr = (rig.EUROC_CAM0_INTRINSICS, rig.EUROC_CAM1_INTRINSICS)[cam_index]
+    dist = (rig.EUROC_CAM0_DISTORTION, rig.EUROC_CAM1_DISTORTION)[cam_index]
     K = np.array([[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1.0]])
     uv = rng.uniform([0, 0], [752, 480], size=(n, 2))
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
@@ -33,7 +34,7 @@ def _cv2_project(points: np.ndarray, cam: C.PinholeRadtan) -> np.ndarray:
 
 @pytest.mark.parametrize("cam_index", [0, 1])
 def test_project_matches_opencv_float64(x64, cam_index):
-    cam = C.euroc_camera(cam_index)
+    cam = rig.euroc_camera(cam_index)
     assert cam.fx.dtype == jnp.float64
     pts = _points_in_view(cam_index, 5000, seed=cam_index)
     ours = np.asarray(jax.jit(C.project)(jnp.asarray(pts), cam))
@@ -66,16 +67,16 @@ def test_project_matches_opencv_random_lens(x64):
 def test_project_float32_tolerance():
     """float32: ~1e-7 relative rounding on pixel coordinates of a few hundred px; we document
     and check 2e-3 px."""
-    cam = C.euroc_camera(0, dtype=jnp.float32)
+    cam = rig.euroc_camera(0, dtype=jnp.float32)
     assert cam.fx.dtype == jnp.float32
     pts = _points_in_view(0, 5000, seed=7)
     ours = np.asarray(C.project(jnp.asarray(pts, jnp.float32), cam), dtype=np.float64)
-    ref = _cv2_project(pts, C.euroc_camera(0, dtype=jnp.float32))
+    ref = _cv2_project(pts, rig.euroc_camera(0, dtype=jnp.float32))
     assert np.abs(ours - ref).max() < 2e-3
 
 
 def test_undistort_inverts_distort(x64):
-    cam = C.euroc_camera(0)
+    cam = rig.euroc_camera(0)
     rng = np.random.default_rng(1)
     # The whole image in normalised coordinates, corners included (|x| up to ~1.3).
     xy = jnp.asarray(rng.uniform([-1.4, -0.9], [1.4, 0.9], size=(20000, 2)))
@@ -87,7 +88,7 @@ def test_undistort_inverts_distort(x64):
 
 
 def test_undistort_matches_opencv(x64):
-    cam = C.euroc_camera(1)
+    cam = rig.euroc_camera(1)
     rng = np.random.default_rng(2)
     uv = rng.uniform([0, 0], [752, 480], size=(2000, 2))
     ours = np.asarray(C.pixels_to_normalized(jnp.asarray(uv), cam))
@@ -99,14 +100,14 @@ def test_undistort_matches_opencv(x64):
 
 
 def test_undistort_float32():
-    cam = C.euroc_camera(0, dtype=jnp.float32)
+    cam = rig.euroc_camera(0, dtype=jnp.float32)
     xy = jnp.asarray(np.random.default_rng(4).uniform(-1.3, 1.3, (1000, 2)), jnp.float32)
     back = C.undistort_normalized(C.distort(xy, cam), cam)
     assert float(jnp.abs(back - xy).max()) < 2e-6
 
 
 def test_pixel_rays_reproject_to_pixel_centres(x64):
-    cam = C.euroc_camera(0)
+    cam = rig.euroc_camera(0)
     rays = C.pixel_rays(cam)
     assert rays.shape == (480, 752, 3)
     np.testing.assert_allclose(np.asarray(rays[..., 2]), 1.0)
@@ -116,7 +117,7 @@ def test_pixel_rays_reproject_to_pixel_centres(x64):
 
 
 def test_unproject_with_depth_round_trip(x64):
-    cam = C.euroc_camera(1)
+    cam = rig.euroc_camera(1)
     uv = jnp.asarray(np.random.default_rng(5).uniform([0, 0], [751, 479], (100, 2)))
     d = jnp.linspace(0.3, 40.0, 100)
     p = C.unproject(uv, cam, d)
@@ -131,7 +132,7 @@ def test_from_calibration_and_euroc_constants(euroc_micro):
         path = euroc_micro / "mav0" / f"cam{i}" / "sensor.yaml"
         calib = camera_calibration_from_yaml(read_sensor_yaml(path), path)
         cam = C.from_calibration(calib)
-        ours = C.euroc_calibration(i)
+        ours = rig.euroc_calibration(i)
         np.testing.assert_allclose(ours.intrinsics, calib.intrinsics)
         np.testing.assert_allclose(ours.distortion, calib.distortion)
         np.testing.assert_allclose(ours.T_BS, calib.T_BS)
@@ -142,7 +143,7 @@ def test_from_calibration_and_euroc_constants(euroc_micro):
 
 
 def test_camera_is_a_pytree_with_static_size():
-    cam = C.euroc_camera(0)
+    cam = rig.euroc_camera(0)
     leaves, treedef = jax.tree_util.tree_flatten(cam)
     assert len(leaves) == 8
     cam2 = jax.tree_util.tree_unflatten(treedef, leaves)
@@ -154,12 +155,12 @@ def test_camera_is_a_pytree_with_static_size():
 
     p = jnp.array([[0.1, -0.2, 2.0]], dtype=jnp.float32)
     a = f(cam, p)
-    b = f(C.euroc_camera(1), p)  # same shapes: no retrace needed, different values
+    b = f(rig.euroc_camera(1), p)  # same shapes: no retrace needed, different values
     assert not np.allclose(np.asarray(a), np.asarray(b))
 
 
 def test_scaled_keeps_field_of_view(x64):
-    cam = C.euroc_camera(0)
+    cam = rig.euroc_camera(0)
     half = cam.scaled(0.5)
     assert (half.width, half.height) == (376, 240)
     p = jnp.array([0.3, -0.2, 1.0])
@@ -168,7 +169,7 @@ def test_scaled_keeps_field_of_view(x64):
 
 
 def test_euroc_stereo_baseline():
-    T = C.euroc_T_C0C1()
+    T = rig.euroc_T_C0C1()
     # cam1 sits ~11 cm to the right of cam0 (x axis), nearly parallel.
     assert 0.10 < T[0, 3] < 0.12
     assert np.abs(T[:3, :3] - np.eye(3)).max() < 0.02

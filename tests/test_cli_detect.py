@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import cv2
 import numpy as np
 import pytest
 
-from uavcal_jax.cli import main
+from uavcal_jax.cli import build_parser, main
 
 pytestmark = pytest.mark.usefixtures("xla_cache")
 
@@ -50,6 +51,78 @@ def test_help_on_every_action(capsys):
             main(argv)
         assert exc.value.code == 0
         assert "usage: uavcal detect" in capsys.readouterr().out
+
+
+def _subparser(parser: argparse.ArgumentParser, *names: str) -> argparse.ArgumentParser:
+    for name in names:
+        (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        parser = sub.choices[name]
+    return parser
+
+
+def test_parser_defaults_are_the_dataclass_defaults():
+    """Every option of `detect train/eval/predict` takes its default and choices from the
+    configuration dataclasses and constants; a new option fails here until it is listed."""
+    from uavcal_jax.commands.detect import PREDICT_BATCH, train_config
+    from uavcal_jax.detect.augment import AugmentConfig
+    from uavcal_jax.detect.config import (
+        EVAL_PREDICT,
+        MODELS,
+        OPTIMIZERS,
+        SCHEDULES,
+        SELECT_METRICS,
+        SERVE_PREDICT,
+        DetectorConfig,
+        TrainConfig,
+    )
+    from uavcal_jax.detect.datasets import FORMATS
+    from uavcal_jax.detect.run import CHECKPOINTS
+
+    paper = TrainConfig()
+    # dest -> (default, choices); None choices: a free value
+    expected = {
+        "train": {
+            "format": (None, FORMATS), "model": (DetectorConfig().model, MODELS),
+            "epochs": (paper.epochs, None), "imgsz": (DetectorConfig().img_size, None),
+            "batch": (paper.batch_size, None), "optimizer": (paper.optimizer, OPTIMIZERS),
+            "lr": (None, None), "schedule": (None, SCHEDULES),
+            "warmup_epochs": (paper.warmup_epochs, None),
+            "no_augment": (paper.augment is None, None),
+            "mosaic": (AugmentConfig().mosaic, None), "no_ema": (not paper.ema, None),
+            "no_autoanchor": (not paper.autoanchor, None),
+            "val_fraction": (paper.val_fraction, None), "split_seed": (paper.split_seed, None),
+            "seed": (paper.seed, None), "eval_every": (paper.eval_every, None),
+            "select_metric": (paper.select_metric, SELECT_METRICS),
+            "workers": (paper.workers, None),
+        },
+        "eval": {
+            "format": (None, FORMATS), "checkpoint": ("best", CHECKPOINTS),
+            "conf": (EVAL_PREDICT.conf_thresh, None), "iou": (EVAL_PREDICT.iou_thresh, None),
+            "batch": (paper.batch_size, None),
+        },
+        "predict": {
+            "conf": (SERVE_PREDICT.conf_thresh, None), "iou": (SERVE_PREDICT.iou_thresh, None),
+            "max_det": (SERVE_PREDICT.max_det, None), "batch": (PREDICT_BATCH, None),
+        },
+    }
+    # options with no configuration field behind them: paths, run control, output format
+    free = {"help", "data", "out", "run", "images", "checkpoint", "val_data", "max_steps",
+            "resume", "no_export", "voc07", "json", "func"}
+    parser = build_parser()
+    for action_name, wanted in expected.items():
+        sub = _subparser(parser, "detect", action_name)
+        options = {a.dest: a for a in sub._actions}
+        unchecked = set(options) - set(wanted) - free
+        assert not unchecked, f"detect {action_name}: options without a checked default"
+        for dest, (default, choices) in wanted.items():
+            assert options[dest].default == default, (action_name, dest)
+            assert (tuple(options[dest].choices) if options[dest].choices else None) == (
+                tuple(choices) if choices else None), (action_name, dest)
+    # the parsed defaults resolve to exactly the recipes' configurations
+    argv = ["detect", "train", "--data", "d", "--out", "o"]
+    assert train_config(parser.parse_args(argv)) == TrainConfig.paper()
+    assert train_config(parser.parse_args([*argv, "--optimizer", "sgd"])) == TrainConfig.yolov5()
+    assert TrainConfig().predict == EVAL_PREDICT
 
 
 def test_errors_are_one_line_exit_2(tmp_path, capsys):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import cv2
@@ -9,8 +10,10 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
-from uavcal_jax.cli import main
+from uavcal_jax.cli import build_parser, main
+from uavcal_jax.commands.simulate import config_from_args
 from uavcal_jax.data import read_euroc
+from uavcal_jax.sim.config import COLORS, SimConfig
 
 
 def _run(capsys, *argv: str) -> tuple[int, str, str]:
@@ -27,12 +30,71 @@ def test_help_documents_every_option(capsys):
     assert code == 0
     for option in ("--out", "--overwrite", "--trajectory", "--start", "--duration", "--seed",
                    "--resolution", "--color", "--camera-rate", "--imu-rate", "--no-imu-noise",
-                   "--no-frames", "--no-depth", "--no-targets", "--batch", "--workers",
-                   "--json"):
+                   "--no-frames", "--no-depth", "--no-targets", "--ideal-camera",
+                   "--exposure", "--gain", "--no-sensor-noise", "--blur-samples", "--batch",
+                   "--workers", "--json"):
         assert option in out, option
     assert "first timestamp" in out  # --start is relative to the file's first timestamp
     code, out, _ = _run(capsys, "demo", "--help")
     assert code == 0 and "--keep" in out and "--json" in out
+
+
+def _simulate_parser() -> argparse.ArgumentParser:
+    """The ``uavcal simulate`` sub-parser of the real command line."""
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices["simulate"]
+
+
+#: ``uavcal simulate`` option (argparse dest) -> the SimConfig field it sets.
+OPTION_FIELDS = {
+    "trajectory": "trajectory", "duration": "duration", "seed": "seed",
+    "resolution": "resolution", "color": "color", "camera_rate": "camera_rate_hz",
+    "imu_rate": "imu_rate_hz", "imu_noise": "imu_noise", "frames": "frames", "depth": "depth",
+    "targets": "targets", "ideal_camera": "ideal_camera", "exposure": "exposure_ms",
+    "gain": "gain", "sensor_noise": "sensor_noise", "blur_samples": "blur_samples",
+    "batch": "batch_size", "workers": "png_workers",
+}  # fmt: skip
+
+
+def test_option_defaults_are_the_sim_config_defaults():
+    parser = _simulate_parser()
+    actions = {a.dest: a for a in parser._actions}
+    defaults = SimConfig()
+    for dest, name in OPTION_FIELDS.items():
+        assert actions[dest].default == getattr(defaults, name), dest
+    assert tuple(actions["color"].choices) == COLORS
+    # --start has no parser default (it must come with --trajectory); unset, it is the field's
+    assert actions["start"].default is None
+    args = parser.parse_args(["--out", "rec"])
+    assert config_from_args(args) == defaults
+    # every default the help states is the dataclass value
+    w, h = defaults.resolution
+    shown = {"start": f"{defaults.start:g}", "duration": f"{defaults.duration:g}",
+             "seed": str(defaults.seed), "resolution": f"{w}x{h}", "color": defaults.color,
+             "camera_rate": f"{defaults.camera_rate_hz:g}",
+             "imu_rate": f"{defaults.imu_rate_hz:g}", "exposure": f"{defaults.exposure_ms:g}",
+             "gain": f"{defaults.gain:g}", "blur_samples": str(defaults.blur_samples),
+             "batch": str(defaults.batch_size), "workers": str(defaults.png_workers)}
+    for dest, text in shown.items():
+        assert f"[default: {text}]" in actions[dest].help, dest
+
+
+def test_camera_options_set_the_config():
+    parser = _simulate_parser()
+    defaults = SimConfig()
+    assert not defaults.ideal_camera and defaults.sensor_noise and defaults.blur_samples > 1
+    args = parser.parse_args(["--out", "rec", "--ideal-camera", "--exposure", "2.5", "--gain",
+                              "3", "--no-sensor-noise", "--blur-samples", "1"])
+    config = config_from_args(args)
+    assert (config.ideal_camera, config.exposure_ms, config.gain, config.sensor_noise,
+            config.blur_samples) == (True, 2.5, 3.0, False, 1)
+
+
+def test_exposure_longer_than_a_frame_is_one_clear_line(capsys, tmp_path):
+    code, _, err = _run(capsys, "simulate", "--out", str(tmp_path / "rec"), "--exposure", "60",
+                        "--duration", "1")
+    assert code == 2 and "exposure" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "rec").exists()
 
 
 def test_no_frames_json(capsys, tmp_path):
@@ -91,7 +153,8 @@ def test_non_empty_output_needs_overwrite(capsys, tmp_path):
 
 
 @pytest.mark.parametrize("bad", [["--resolution", "big"], ["--duration", "-1"],
-                                 ["--color", "sepia"]])
+                                 ["--color", "sepia"], ["--exposure", "0"],
+                                 ["--blur-samples", "0"], ["--gain", "-2"]])
 def test_bad_options_are_usage_errors(capsys, tmp_path, bad):
     code, _, err = _run(capsys, "simulate", "--out", str(tmp_path / "rec"), *bad)
     assert code == 2 and "usage" in err

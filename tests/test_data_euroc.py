@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from uavcal_jax.data import read_euroc, read_opencv_yaml, read_sensor_yaml
-from uavcal_jax.data.euroc import read_table
+from uavcal_jax.data.table import read_table
 from uavcal_jax.data.targets import TargetLabels, write_target_labels
 from uavcal_jax.errors import DataRepairWarning
 
@@ -98,10 +98,10 @@ def test_micro_calibration_equals_yaml(euroc_micro):
     imu = seq.imu_calibration
     assert imu.rate_hz == 200.0
     np.testing.assert_array_equal(imu.T_BS, np.eye(4))
-    assert imu.gyroscope_noise_density == 1.6968e-04
-    assert imu.gyroscope_random_walk == 1.9393e-05
-    assert imu.accelerometer_noise_density == 2.0000e-3
-    assert imu.accelerometer_random_walk == 3.0000e-3
+    assert imu.noise.gyro_noise_density == 1.6968e-04
+    assert imu.noise.gyro_random_walk == 1.9393e-05
+    assert imu.noise.accel_noise_density == 2.0000e-3
+    assert imu.noise.accel_random_walk == 3.0000e-3
 
 
 @pytest.mark.realdata

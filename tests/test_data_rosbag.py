@@ -11,6 +11,7 @@ import pytest
 from uavcal_jax.data.rosbag import read_rosbag
 from uavcal_jax.data.sequence import CameraCalibration, ImuCalibration
 from uavcal_jax.errors import DataError, DataRepairWarning
+from uavcal_jax.imu.noise import ImuNoise
 
 rosbags = pytest.importorskip("rosbags")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
@@ -153,7 +154,10 @@ def test_explicit_topics_and_calibration(tmp_path, version):
     path = _bag_path(tmp_path, version)
     write_bag(path, version)
     cal = CameraCalibration(np.array([10.0, 11, 8, 6]), np.zeros(4), (W, H), 20.0, np.eye(4))
-    imu_cal = ImuCalibration(200.0, np.eye(4), 1e-4, 1e-5, 1e-3, 1e-4)
+    imu_cal = ImuCalibration(200.0, np.eye(4), ImuNoise(gyro_noise_density=1e-4,
+                                                        gyro_random_walk=1e-5,
+                                                        accel_noise_density=1e-3,
+                                                        accel_random_walk=1e-4))
     seq = read_rosbag(path, imu_topic="/imu0", image_topics={"left": "/cam2/image_raw"},
                       calibration={"left": cal, "imu": imu_cal})
     assert list(seq.cameras) == ["left"]

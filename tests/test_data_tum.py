@@ -39,9 +39,9 @@ def test_round_trip_exact(tmp_path):
 @settings(max_examples=200, deadline=None)
 @given(st.integers(min_value=-(2**62), max_value=2**62))
 def test_ns_seconds_text_exact(t_ns):
-    from uavcal_jax.data.euroc import _parse_seconds_ns
+    from uavcal_jax.data.table import parse_seconds_ns
 
-    assert _parse_seconds_ns(format_ns_seconds(t_ns)) == t_ns
+    assert parse_seconds_ns(format_ns_seconds(t_ns)) == t_ns
 
 
 def test_seconds_to_ns_rounding(tmp_path):

@@ -19,16 +19,9 @@ from uavcal_jax.detect.augment import (
     scale_boxes,
     unletterbox_boxes,
 )
-from uavcal_jax.detect.datasets import (
-    detect_format,
-    load_dataset,
-    read_coco,
-    read_sim_targets,
-    read_voc,
-    read_yolo,
-    split_ids,
-)
+from uavcal_jax.detect.datasets import detect_format, load_dataset, split_ids
 from uavcal_jax.detect.loader import DetectionLoader
+from uavcal_jax.detect.readers import read_coco, read_sim_targets, read_voc, read_yolo
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 # ------------------------------------------------------------------------------ helpers
@@ -200,18 +193,39 @@ def test_coco_reader(tmp_path):
 # ------------------------------------------------------------------------------ simulator
 
 
-def test_sim_targets_reader(tmp_path):
-    from uavcal_jax.data.targets import TargetLabels, write_target_labels
+_T_BS = "T_BS:\n  cols: 4\n  rows: 4\n  data: [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]\n"
 
-    mav0 = tmp_path / "mav0"
+
+def _sim_folder(root, ts, w=64, h=48):
+    """A minimal ASL folder as the simulator writes it: cam0 (w x h at 20 Hz) and imu0."""
+    mav0 = root / "mav0"
     (mav0 / "cam0" / "data").mkdir(parents=True)
-    ts = [1000, 2000, 3000]
+    (mav0 / "cam0" / "sensor.yaml").write_text(
+        f"%YAML:1.0\nsensor_type: camera\n{_T_BS}rate_hz: 20\nresolution: [{w}, {h}]\n"
+        "camera_model: pinhole\nintrinsics: [50.0, 50.0, 32.0, 24.0]\n"
+        "distortion_model: radial-tangential\ndistortion_coefficients: [0.0, 0.0, 0.0, 0.0]\n")
     (mav0 / "cam0" / "data.csv").write_text(
         "#timestamp [ns],filename\n" + "".join(f"{t},{t}.png\n" for t in ts))
     for t in ts:
-        _image(mav0 / "cam0" / "data" / f"{t}.png")
+        _image(mav0 / "cam0" / "data" / f"{t}.png", w, h)
+    (mav0 / "imu0").mkdir()
+    (mav0 / "imu0" / "sensor.yaml").write_text(
+        f"%YAML:1.0\nsensor_type: imu\n{_T_BS}rate_hz: 200\n"
+        "gyroscope_noise_density: 1.0e-4\ngyroscope_random_walk: 2.0e-5\n"
+        "accelerometer_noise_density: 2.0e-3\naccelerometer_random_walk: 3.0e-3\n")
+    imu_t = range(ts[0], ts[-1] + 1, 5_000_000)
+    (mav0 / "imu0" / "data.csv").write_text(
+        "#timestamp [ns],wx,wy,wz,ax,ay,az\n" + "".join(f"{t},0,0,0,0,0,9.81\n" for t in imu_t))
+    return mav0
+
+
+def test_sim_targets_reader(tmp_path):
+    from uavcal_jax.data.targets import TargetLabels, write_target_labels
+
+    ts = [10**18 + i * 50_000_000 for i in range(3)]
+    mav0 = _sim_folder(tmp_path, ts)
     labels = TargetLabels(
-        t_ns=np.array([1000, 3000]), camera=np.array(["cam0", "cam0"]),
+        t_ns=np.array([ts[0], ts[2]]), camera=np.array(["cam0", "cam0"]),
         track_id=np.array([0, 0]), class_id=np.array([0, 0]),
         box=np.array([[5.0, 6, 20, 30], [10, 10, 70, 20]]), visible_pixels=np.array([9, 9]),
         position=np.zeros((2, 3)), class_names=("target",))
@@ -223,6 +237,32 @@ def test_sim_targets_reader(tmp_path):
     np.testing.assert_allclose(ds[0].boxes, [[5, 6, 20, 30]])
     assert len(ds[1]) == 0
     np.testing.assert_allclose(ds[2].boxes, [[10, 10, 64, 20]])  # clipped to width 64
+
+
+def test_sim_targets_use_the_euroc_rules(tmp_path):
+    """Frames go through read_euroc: a listed frame without its image is dropped with the
+    EuRoC reader's warning, and timestamps going backwards are a DataError naming the line."""
+    from uavcal_jax.data.targets import TargetLabels, write_target_labels
+
+    ts = [10**18 + i * 50_000_000 for i in range(4)]
+    mav0 = _sim_folder(tmp_path, ts)
+    write_target_labels(mav0 / "target0", TargetLabels(
+        t_ns=np.array([ts[1]]), camera=np.array(["cam0"]), track_id=np.array([0]),
+        class_id=np.array([0]), box=np.array([[5.0, 6, 20, 30]]),
+        visible_pixels=np.array([9]), position=np.zeros((1, 3)), class_names=("target",)))
+    (mav0 / "cam0" / "data" / f"{ts[3]}.png").unlink()
+    ds, warns = _caught(read_sim_targets, tmp_path)
+    assert len(ds) == 3 and [len(r) for r in ds] == [0, 1, 0]
+    assert len(warns) == 1 and "missing" in str(warns[0].message)
+    assert ds[1].image_id == f"cam0/{ts[1]}.png"
+    every_other, _ = _caught(read_sim_targets, tmp_path, stride=2, check_images=False)
+    assert [r.image_id for r in every_other] == [f"cam0/{ts[0]}.png", f"cam0/{ts[2]}.png"]
+    csv = mav0 / "cam0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join([lines[0], lines[2], lines[1], *lines[3:4]]) + "\n")
+    with pytest.raises(DataError, match="data.csv") as err:
+        read_sim_targets(tmp_path)
+    assert err.value.row == 3
 
 
 # ------------------------------------------------------------------------------ errors

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from uavcal_jax.detect.config import DetectorConfig
+from uavcal_jax.detect.config import DetectorConfig, PredictConfig
 from uavcal_jax.detect.counting import classifier_counts, count_macs, detector_counts
 from uavcal_jax.detect.layers import (
     DepthwiseConv,
@@ -144,7 +144,7 @@ def test_head_bias_init_follows_yolov5(small):
 
 def test_predict_fn_fixed_shapes(small):
     cfg, v = small
-    fn = make_predict_fn(cfg, conf_thresh=0.001, max_det=25)
+    fn = make_predict_fn(cfg, PredictConfig(conf_thresh=0.001, max_det=25))
     det = fn(v, jax.random.uniform(jax.random.key(1), (3, 64, 64, 3)))
     assert det.boxes.shape == (3, 25, 4) and det.scores.shape == (3, 25)
     assert det.classes.dtype == jnp.int32 and det.valid.dtype == jnp.bool_

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 
 import cv2
@@ -11,17 +12,11 @@ import numpy as np
 import pytest
 
 from uavcal_jax.detect.anchors import anchor_metrics, label_sizes
-from uavcal_jax.detect.config import DetectorConfig
+from uavcal_jax.detect.config import SERVE_PREDICT, DetectorConfig, TrainConfig
 from uavcal_jax.detect.datasets import load_dataset
-from uavcal_jax.detect.train import (
-    TrainConfig,
-    decay_mask,
-    load_run,
-    make_schedules,
-    param_labels,
-    train,
-    warmup_steps,
-)
+from uavcal_jax.detect.optim import decay_mask, make_schedules, param_labels, warmup_steps
+from uavcal_jax.detect.run import load_run
+from uavcal_jax.detect.train import train
 
 IMG = (64, 96)  # (H, W): tiny, multiples of 32
 
@@ -137,22 +132,30 @@ def test_resume_reproduces_uninterrupted_run(tiny_runs):
 
 def test_export_matches_in_process(tiny_runs, tmp_path):
     from uavcal_jax.detect.export import export_predict, load_exported
-    from uavcal_jax.detect.predict import make_predict_fn
+    from uavcal_jax.detect.predict import detect_images, make_predict_fn
 
     ds, det, _, run_a, *_ = tiny_runs
     loaded = load_run(run_a)
+    predict_cfg = SERVE_PREDICT.replace(conf_thresh=0.001, iou_thresh=0.6)
     path = export_predict(loaded.variables, loaded.det_cfg, tmp_path / "det.jax",
-                          class_names=ds.class_names, conf_thresh=0.001, iou_thresh=0.6)
+                          class_names=ds.class_names, predict_cfg=predict_cfg)
     served = load_exported(path)
     assert served.meta["class_names"] == ["red", "blue"]
     images = jax.random.uniform(jax.random.PRNGKey(0), (2, *IMG, 3))
     out = served(images)
-    ref = make_predict_fn(loaded.det_cfg, conf_thresh=0.001, iou_thresh=0.6)(loaded.variables,
-                                                                             images)
+    ref = make_predict_fn(loaded.det_cfg, predict_cfg)(loaded.variables, images)
     np.testing.assert_array_equal(out["valid"], np.asarray(ref.valid))
     assert out["valid"].sum() > 0
     np.testing.assert_allclose(out["boxes"], np.asarray(ref.boxes), atol=1e-3)
     np.testing.assert_allclose(out["scores"], np.asarray(ref.scores), atol=1e-5)
     np.testing.assert_array_equal(out["classes"], np.asarray(ref.classes))
-    one = served.detect((np.asarray(images[0]) * 255).astype(np.uint8))
+    image = (np.asarray(images[0]) * 255).astype(np.uint8)[:50, :80]  # letterboxed into IMG
+    one = served.detect(image)
     assert one["boxes"].shape[1] == 4
+    # the in-process predict path (as `uavcal detect predict`) gives the same boxes
+    fn = functools.partial(make_predict_fn(loaded.det_cfg, predict_cfg), loaded.variables)
+    (mine,) = detect_images(fn, [image], loaded.det_cfg.img_size)
+    np.testing.assert_allclose(one["boxes"], mine.boxes, atol=1e-2)
+    np.testing.assert_allclose(one["scores"], mine.scores, atol=1e-5)
+    np.testing.assert_array_equal(one["classes"], mine.classes)
+    assert np.all(mine.boxes[:, [0, 2]] <= 80) and np.all(mine.boxes[:, [1, 3]] <= 50)

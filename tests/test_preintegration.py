@@ -12,7 +12,7 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.geometry import so3
 from uavcal_jax.imu import (
     THETA_LIMIT,
-    PreintegrationNoise,
+    ImuNoise,
     bias_correct,
     interval_batch,
     interval_samples,
@@ -196,7 +196,7 @@ def test_offset_acts_like_a_bias(x64):
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_closed_covariance_matches_recursive(x64, scheme):
     dt, gyro, accel = window(0.0, 1.0, 200, rate=2.0)
-    noise = PreintegrationNoise(integration_covariance=1e-8)
+    noise = ImuNoise(integration_covariance=1e-8)
     c = preintegrate(dt, gyro, accel, noise=noise, scheme=scheme, covariance="closed").cov
     r = preintegrate(dt, gyro, accel, noise=noise, scheme=scheme, covariance="recursive").cov
     c, r = np.asarray(c), np.asarray(r)
@@ -211,7 +211,7 @@ def test_covariance_monte_carlo(x64):
     """The propagated covariance is the covariance of the preintegration error under white
     noise of the stated densities (tangent scheme, theta coordinates)."""
     dt, gyro, accel = window(0.0, 0.5, 100, rate=2.0)
-    noise = PreintegrationNoise(gyro_noise_density=2e-3, accel_noise_density=2e-2)
+    noise = ImuNoise(gyro_noise_density=2e-3, accel_noise_density=2e-2)
     ref = preintegrate(dt, gyro, accel, noise=noise)
     n_mc = 4000
     key_g, key_a = jax.random.split(jax.random.PRNGKey(0))
@@ -236,7 +236,7 @@ def test_covariance_monte_carlo(x64):
 
 def test_bias_covariance_15(x64):
     dt, gyro, accel = window(0.0, 1.0, 200)
-    noise = PreintegrationNoise()
+    noise = ImuNoise()
     p9 = preintegrate(dt, gyro, accel, noise=noise)
     p15 = preintegrate(dt, gyro, accel, noise=noise, bias_covariance=True)
     c = np.asarray(p15.cov)

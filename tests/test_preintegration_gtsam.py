@@ -15,9 +15,9 @@ import pytest
 
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.geometry import so3
+from uavcal_jax.geometry.frames import GRAVITY
 from uavcal_jax.imu import (
     NavState,
-    PreintegrationNoise,
     interval_batch,
     interval_samples,
     predict,
@@ -53,7 +53,7 @@ def _intervals(seq, kind):
 
 def _gtsam_params(noise, combined=False):
     cls = gtsam.PreintegrationCombinedParams if combined else gtsam.PreintegrationParams
-    p = cls.MakeSharedU(9.81)
+    p = cls.MakeSharedU(GRAVITY)
     p.setGyroscopeCovariance(np.eye(3) * noise.gyro_noise_density**2)
     p.setAccelerometerCovariance(np.eye(3) * noise.accel_noise_density**2)
     p.setIntegrationCovariance(np.zeros((3, 3)))
@@ -90,7 +90,7 @@ def _ours(seq, i, j, noise, **kw):
 
 @pytest.fixture(scope="module")
 def cases(v101):
-    noise = PreintegrationNoise.from_calibration(v101.imu_calibration)
+    noise = v101.imu_calibration.noise
     out = {}
     for kind in ("pairs", "1s"):
         i, j = _intervals(v101, kind)
@@ -143,7 +143,7 @@ def test_recursive_covariance_is_gtsams(v101, cases):
 
 
 def test_combined_covariance_is_gtsams(v101):
-    noise = PreintegrationNoise.from_calibration(v101.imu_calibration)
+    noise = v101.imu_calibration.noise
     i = np.arange(0, 2000, 100)
     j = i + 20
     pims = _gtsam_pims(v101, i, j, noise, combined=True)

@@ -11,9 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from uavcal_jax.data import euroc_rig as rig
 from uavcal_jax.geometry import camera as C
 from uavcal_jax.sim import render as R
 from uavcal_jax.sim import scene as S
+from uavcal_jax.sim.scene_build import make_scene
 
 # A short, curvy flight path (world z up) inside [-2, 2] x [-2, 2] x [1, 2].
 _T = np.linspace(0.0, 2 * np.pi, 200)
@@ -38,12 +40,12 @@ def _look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def scene() -> S.Scene:
-    return S.make_scene(PATH.min(0), PATH.max(0), seed=3, path_points=PATH)
+    return make_scene(PATH.min(0), PATH.max(0), seed=3, path_points=PATH)
 
 
 def _empty_scene(lo, hi, **kw) -> S.Scene:
     cfg = S.SceneConfig(n_obstacles=0, n_targets=0, **kw)
-    return S.make_scene(lo, hi, seed=0, config=cfg)
+    return make_scene(lo, hi, seed=0, config=cfg)
 
 
 def _box_surface_distance(points: np.ndarray, center, yaw, half, inside: bool) -> np.ndarray:
@@ -62,13 +64,34 @@ def _all_boxes(scene, t):
     return center, yaw, half
 
 
+def _first_hits(eye, directions, center, yaw, half) -> tuple[np.ndarray, np.ndarray]:
+    """Reference ray cast in float64: for rays ``eye + t d`` (``d`` (M, 3) world), the
+    parameter ``t`` of the first surface hit and the index of the box hit (0: the hall, seen
+    from inside), by the slab test in each yaw box's frame."""
+    t_hit = np.full(len(directions), np.inf)
+    k_hit = np.zeros(len(directions), np.int64)
+    for k in range(len(center)):
+        c, s = np.cos(yaw[k]), np.sin(yaw[k])
+        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # world -> box axes
+        o, d = rot @ (eye - center[k]), directions @ rot.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (-half[k] - o) / d, (half[k] - o) / d
+        t_near = np.max(np.minimum(t1, t2), axis=1)
+        t_far = np.min(np.maximum(t1, t2), axis=1)
+        hit = (t_near <= t_far) & (t_near > 0)
+        t_k = t_far if k == 0 else np.where(hit, t_near, np.inf)  # the hall: where rays leave
+        closer = t_k < t_hit
+        t_hit, k_hit = np.where(closer, t_k, t_hit), np.where(closer, k, k_hit)
+    return t_hit, k_hit
+
+
 # --- (b) depth agrees with the geometry --------------------------------------------------------
 
 
 def test_depth_of_fronto_parallel_wall_is_analytic():
     scn = _empty_scene([0.0, 0.0, 0.0], [4.0, 4.0, 2.0])
     lo, hi = scn.room_lo, scn.room_hi
-    cam = C.euroc_camera(0).scaled(0.25)
+    cam = rig.euroc_camera(0).scaled(0.25)
     eye = np.array([2.0, 2.0, 1.0])
     T = _look_at(eye, eye + [1.0, 0.0, 0.0])  # optical axis = +x: the wall x = hi[0]
     out = R.render(scn, cam, T, 0.0, color="gray")
@@ -90,7 +113,7 @@ def test_depth_of_fronto_parallel_wall_is_analytic():
 
 def test_depth_of_floor_looking_down():
     scn = _empty_scene([0.0, 0.0, 0.0], [3.0, 3.0, 2.0])
-    cam = C.euroc_camera(1).scaled(0.25)
+    cam = rig.euroc_camera(1).scaled(0.25)
     eye = np.array([1.5, 1.5, 1.7])
     T = _look_at(eye, eye + [0.0, 0.0, -1.0])
     depth = np.asarray(R.render(scn, cam, T, color="gray").depth)
@@ -100,10 +123,10 @@ def test_depth_of_floor_looking_down():
 
 
 def test_backprojected_depth_lies_on_scene_surfaces(scene):
-    cam = C.euroc_camera(0).scaled(0.5)
+    cam = rig.euroc_camera(0).scaled(0.5)
     rng = np.random.default_rng(0)
     rays = np.asarray(R.camera_rays(cam), np.float64)
-    n_checked = 0
+    target_pixels = reference_target_pixels = 0
     for i in range(6):
         t = 0.7 * i
         eye = PATH[rng.integers(len(PATH))]
@@ -137,16 +160,27 @@ def test_backprojected_depth_lies_on_scene_surfaces(scene):
         uv = np.asarray(C.project(pts, cam.astype(jnp.float32)))
         grid = np.stack(np.meshgrid(np.arange(cam.width), np.arange(cam.height)), -1).reshape(-1, 2)
         np.testing.assert_allclose(uv, grid[idx], atol=1e-2)
-        n_checked += depth.size
-    assert n_checked > 0
+        # an independent float64 ray cast of the same boxes sees the same surfaces: the same
+        # target (or none) on all but silhouette-edge pixels, at the same depth
+        t_ref, k_ref = _first_hits(T[:3, 3], rays.reshape(-1, 3) @ T[:3, :3].T, center, yaw,
+                                   half)
+        obj_ref = np.where(k_ref >= n_static, k_ref - n_static, -1)
+        assert np.mean(obj.reshape(-1) == obj_ref) > 0.999
+        rel = np.abs(depth.reshape(-1) - t_ref) / t_ref
+        assert np.mean(rel < 1e-4) > 0.999, np.mean(rel < 1e-4)
+        target_pixels += int(np.sum(obj >= 0))
+        reference_target_pixels += int(np.sum(obj_ref >= 0))
+    # the views do see targets, and as many of their pixels as the reference ray cast
+    assert reference_target_pixels > 100
+    assert abs(target_pixels - reference_target_pixels) <= 1e-3 * reference_target_pixels
 
 
 # --- (c) stereo: depth transfer, epipolar constraint, trackable texture ------------------------
 
 
 def _stereo_pair(scene, eye, look, t=0.0, scale=1.0):
-    cam0, cam1 = C.euroc_camera(0).scaled(scale), C.euroc_camera(1).scaled(scale)
-    T_BS0, T_BS1 = C.EUROC_CAM0_T_BS, C.EUROC_CAM1_T_BS
+    cam0, cam1 = rig.euroc_camera(0).scaled(scale), rig.euroc_camera(1).scaled(scale)
+    T_BS0, T_BS1 = rig.EUROC_CAM0_T_BS, rig.EUROC_CAM1_T_BS
     T_WC0 = _look_at(eye, look)
     T_WB = T_WC0 @ np.linalg.inv(T_BS0)
     T_WC1 = T_WB @ T_BS1
@@ -164,7 +198,7 @@ def _essential(T_C1C0: np.ndarray) -> np.ndarray:
 def test_stereo_depth_transfer_and_epipolar_constraint(scene):
     eye = PATH[10]
     cam0, cam1, T0, T1, out0, out1 = _stereo_pair(scene, eye, eye + [1.0, 0.3, -0.2], scale=0.5)
-    T_C1C0 = np.linalg.inv(C.euroc_T_C0C1())
+    T_C1C0 = np.linalg.inv(rig.euroc_T_C0C1())
     np.testing.assert_allclose(np.linalg.inv(T1) @ T0, T_C1C0, atol=1e-9)
     d0 = np.asarray(out0.depth, np.float64)
     d1 = np.asarray(out1.depth, np.float64)
@@ -218,7 +252,7 @@ def test_stereo_corners_track_along_epipolar_lines(scene):
     x1 = cv2.undistortPoints(p1[:, None], K1, dist1, None, None, criteria=crit)[:, 0]
     x0h = np.concatenate([x0, np.ones((len(x0), 1))], 1)
     x1h = np.concatenate([x1, np.ones((len(x1), 1))], 1)
-    E = _essential(np.linalg.inv(C.euroc_T_C0C1()))
+    E = _essential(np.linalg.inv(rig.euroc_T_C0C1()))
     lines = x0h @ E.T  # epipolar lines in cam1's normalised plane
     dist_norm = np.abs(np.sum(lines * x1h, 1)) / np.linalg.norm(lines[:, :2], axis=1)
     dist_px = dist_norm * float(cam1.fx)
@@ -229,7 +263,7 @@ def test_stereo_corners_track_along_epipolar_lines(scene):
 def test_texture_has_corners_everywhere(scene):
     """Shi-Tomasi (run per cell, as grid-based VIO front ends do) finds corners in every cell
     of a 4x4 grid over the image, near and far, on walls, floor, obstacles and targets."""
-    cam = C.euroc_camera(0)
+    cam = rig.euroc_camera(0)
     eye = PATH[120]
     for look in ([1.0, 0.2, 0.0], [0.0, -1.0, -0.5], [-1.0, 0.5, 0.3]):
         out = R.render(scene, cam, _look_at(eye, eye + look), 0.0, color="gray")
@@ -264,7 +298,7 @@ def _with_static_targets(scene: S.Scene, xy: np.ndarray, yaw: np.ndarray) -> S.S
 
 def test_target_box_contains_projected_centre_and_occlusion(scene):
     assert scene.n_targets >= 2
-    cam = C.euroc_camera(0).scaled(0.5)
+    cam = rig.euroc_camera(0).scaled(0.5)
     room_c = 0.5 * (scene.room_lo + scene.room_hi)
     # camera low over the floor in the hall's centre, looking along +x
     eye = np.array([room_c[0] - 3.0, room_c[1], scene.room_lo[2] + 1.2])
@@ -314,9 +348,9 @@ def test_target_boxes_batch_and_empty():
 
 
 def test_scene_is_deterministic_and_seed_dependent():
-    a = S.make_scene(PATH.min(0), PATH.max(0), seed=5, path_points=PATH)
-    b = S.make_scene(PATH.min(0), PATH.max(0), seed=5, path_points=PATH)
-    c = S.make_scene(PATH.min(0), PATH.max(0), seed=6, path_points=PATH)
+    a = make_scene(PATH.min(0), PATH.max(0), seed=5, path_points=PATH)
+    b = make_scene(PATH.min(0), PATH.max(0), seed=5, path_points=PATH)
+    c = make_scene(PATH.min(0), PATH.max(0), seed=6, path_points=PATH)
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert not np.array_equal(np.asarray(a.box_center), np.asarray(c.box_center))
@@ -370,7 +404,7 @@ def test_targets_move_smoothly_on_closed_paths(scene):
 
 def test_scene_without_path_points_keeps_bounds_clear():
     lo, hi = np.array([0.0, 0.0, 1.0]), np.array([3.0, 2.0, 2.0])
-    scn = S.make_scene(lo, hi, seed=1)
+    scn = make_scene(lo, hi, seed=1)
     center, yaw, half = _all_boxes(scn, 0.0)
     grid = np.stack(np.meshgrid(*[np.linspace(lo[i], hi[i], 12) for i in range(3)],
                                 indexing="ij"), -1).reshape(-1, 3)  # fmt: skip
@@ -382,7 +416,7 @@ def test_scene_without_path_points_keeps_bounds_clear():
 
 
 def test_render_batch_matches_render_and_traced_camera(scene):
-    cam = C.euroc_camera(0).scaled(0.25)
+    cam = rig.euroc_camera(0).scaled(0.25)
     eyes = PATH[[5, 50, 95]]
     Ts = np.stack([_look_at(e, e + [1.0, 0.5, -0.2]) for e in eyes])
     ts = np.array([0.0, 0.5, 1.0])
@@ -403,7 +437,7 @@ def test_render_batch_matches_render_and_traced_camera(scene):
 
 
 def test_rgb_and_gray_agree(scene):
-    cam = C.euroc_camera(0).scaled(0.5)
+    cam = rig.euroc_camera(0).scaled(0.5)
     eye = PATH[30]
     T = _look_at(eye, eye + [1.0, 0.0, -0.3])
     rgb = np.asarray(R.render(scene, cam, T, color="rgb").image)

@@ -10,28 +10,24 @@ import numpy as np
 import pytest
 from conftest import SHARED_DATA
 from scipy.signal import butter, filtfilt
+from scipy.spatial.transform import Rotation
 
 from uavcal_jax.data.sequence import GroundTruth, ImuCalibration, ImuData
 from uavcal_jax.errors import DataRepairWarning
+from uavcal_jax.geometry.frames import GRAVITY, GRAVITY_W
+from uavcal_jax.imu.noise import ImuNoise
+from uavcal_jax.sim.flights import procedural_flight, straight_flight
 from uavcal_jax.sim.imu_synth import (
-    GRAVITY_W,
-    ImuNoise,
     SyntheticImu,
+    TurnOnBias,
     ground_truth_from_trajectory,
     ideal_imu,
     imu_noise,
     imu_timestamps,
     synthesize_imu,
 )
-from uavcal_jax.sim.trajectory import (
-    GRAVITY,
-    Trajectory,
-    fit_tum_trajectory,
-    procedural_flight,
-    quat_multiply,
-    quat_to_matrix,
-    straight_flight,
-)
+from uavcal_jax.sim.trajectory import Trajectory
+from uavcal_jax.sim.trajectory_fit import fit_tum_trajectory
 
 # --------------------------------------------------------------------------------------------
 # (a) The simulator's IMU agrees with a real IMU
@@ -253,10 +249,13 @@ def integrate_imu(q0, v0, p0, gyro, accel, dt):
     """Strapdown integration: classical RK4 with step ``2 dt`` on the IMU samples (the middle
     sample is the RK4 half step), quaternion kinematics ``q' = q ⊗ (0, w) / 2``, world
     acceleration ``R(q) f + g``; the quaternion is renormalised after each step."""
-    g = GRAVITY_W
+    g = np.asarray(GRAVITY_W)
 
     def f(q, v, w, acc):
-        return 0.5 * quat_multiply(q, np.concatenate([[0.0], w])), quat_to_matrix(q) @ acc + g, v
+        # q (x) (0, w) = (-q_v . w, q_w w + q_v x w); R(q) normalises q (w, x, y, z)
+        q_dot = np.concatenate([[-(q[1:] @ w)], q[0] * w + np.cross(q[1:], w)])
+        R = Rotation.from_quat(np.concatenate([q[1:], q[:1]])).as_matrix()
+        return 0.5 * q_dot, R @ acc + g, v
 
     q, v, p = np.asarray(q0, float), np.asarray(v0, float), np.asarray(p0, float)
     h = 2.0 * dt
@@ -377,10 +376,10 @@ def test_noise_statistics():
     rate, seconds = 200.0, 1000.0
     dt = 1.0 / rate
     noise = ImuNoise(gyro_noise_density=2e-3, gyro_random_walk=4e-4, accel_noise_density=3e-2,
-                     accel_random_walk=5e-3, turn_on_bias_gyro_sigma=0.02,
-                     turn_on_bias_accel_sigma=0.1)
+                     accel_random_walk=5e-3)
+    turn_on = TurnOnBias(gyro_sigma=0.02, accel_sigma=0.1)
     traj = _hover(seconds)
-    syn = synthesize_imu(traj, rate, noise=noise, seed=3)
+    syn = synthesize_imu(traj, rate, noise=noise, seed=3, turn_on=turn_on)
     exact = synthesize_imu(traj, rate)
     n = len(syn.imu)
     assert n == 200_001
@@ -403,10 +402,10 @@ def test_noise_statistics():
             d = bias[lag::lag] - bias[:-lag:lag][: len(bias[lag::lag])]
             assert np.mean(d**2) == pytest.approx(walk**2 * lag_s, rel=rtol)
     # turn-on biases over many seeds
-    b0 = np.array([[imu_noise(2, dt, noise, seed=s)[k][0] for k in ("bias_gyro", "bias_accel")]
-                   for s in range(400)])
-    np.testing.assert_allclose(b0[:, 0].std(), noise.turn_on_bias_gyro_sigma, rtol=0.12)
-    np.testing.assert_allclose(b0[:, 1].std(), noise.turn_on_bias_accel_sigma, rtol=0.12)
+    b0 = np.array([[imu_noise(2, dt, noise, seed=s, turn_on=turn_on)[k][0]
+                    for k in ("bias_gyro", "bias_accel")] for s in range(400)])
+    np.testing.assert_allclose(b0[:, 0].std(), turn_on.gyro_sigma, rtol=0.12)
+    np.testing.assert_allclose(b0[:, 1].std(), turn_on.accel_sigma, rtol=0.12)
 
 
 def test_same_seed_same_output_different_seeds_differ():
@@ -428,15 +427,19 @@ def test_same_seed_same_output_different_seeds_differ():
 
 
 def test_noise_from_calibration(euroc_micro):
+    """The reader's noise model is the one the simulator draws from (no conversion)."""
     _, _, calib = load_real_imu(euroc_micro)
-    noise = ImuNoise.from_calibration(calib)
+    noise = calib.noise
     assert noise.gyro_noise_density == pytest.approx(1.6968e-04)
     assert noise.gyro_random_walk == pytest.approx(1.9393e-05)
     assert noise.accel_noise_density == pytest.approx(2.0e-3)
     assert noise.accel_random_walk == pytest.approx(3.0e-3)
     assert noise == ImuNoise()  # the defaults are EuRoC's ADIS16448
-    assert ImuNoise.from_calibration(calib, turn_on_bias_gyro_sigma=0.0).turn_on_bias_gyro_sigma \
-        == 0.0
+    traj = _hover(1.0)
+    a = synthesize_imu(traj, noise=noise, seed=4, turn_on=TurnOnBias(gyro_sigma=0.0))
+    b = synthesize_imu(traj, noise=ImuNoise(), seed=4, turn_on=TurnOnBias(gyro_sigma=0.0))
+    np.testing.assert_array_equal(a.imu.gyro, b.imu.gyro)
+    np.testing.assert_array_equal(a.bias_gyro[0], 0.0)
 
 
 def test_ground_truth_from_trajectory():

@@ -6,28 +6,24 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from uavcal_jax.data.sequence import GroundTruth
 from uavcal_jax.data.tum import read_tum
 from uavcal_jax.errors import DataError
-from uavcal_jax.sim.trajectory import (
-    GRAVITY,
-    FitConfig,
-    FlightConfig,
-    Trajectory,
-    fit_tum_trajectory,
-    procedural_flight,
-    quat_conjugate,
-    quat_multiply,
-    remove_position_jumps,
-    sign_continuous,
-    straight_flight,
-)
+from uavcal_jax.geometry.frames import GRAVITY
+from uavcal_jax.sim.flights import FlightConfig, procedural_flight, straight_flight
+from uavcal_jax.sim.trajectory import Trajectory, sign_continuous
+from uavcal_jax.sim.trajectory_fit import FitConfig, fit_tum_trajectory, remove_position_jumps
+
+
+def _rotations(q: np.ndarray) -> Rotation:
+    """scipy rotations of (N, 4) quaternions in the project's (w, x, y, z) order."""
+    return Rotation.from_quat(np.asarray(q)[..., [1, 2, 3, 0]])
 
 
 def _rotation_angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
-    d = quat_multiply(quat_conjugate(qa), qb)
-    return 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
+    return (_rotations(qa).inv() * _rotations(qb)).magnitude()
 
 
 def _check_derivatives(traj: Trajectory, t: np.ndarray, h: float = 2.0**-14) -> None:
@@ -43,8 +39,9 @@ def _check_derivatives(traj: Trajectory, t: np.ndarray, h: float = 2.0**-14) -> 
         ref = df(t)
         tol = 1e-6 * scale * max(1.0, float(np.abs(ref).max()))
         np.testing.assert_allclose(fd, ref, atol=tol, rtol=0)
-    q_dot = (traj.quaternion(t + h) - traj.quaternion(t - h)) / (2 * h)
-    omega_fd = 2.0 * quat_multiply(quat_conjugate(traj.quaternion(t)), q_dot)[:, 1:]
+    # body rate from the relative rotation over [t - h, t + h] (scipy's log map)
+    omega_fd = (_rotations(traj.quaternion(t - h)).inv()
+                * _rotations(traj.quaternion(t + h))).as_rotvec() / (2 * h)
     np.testing.assert_allclose(omega_fd, traj.angular_velocity_body(t), atol=1e-6, rtol=0)
     # The rotation matrix agrees with the quaternion, and the world rate is R @ body rate.
     R = traj.rotation_matrix(t)

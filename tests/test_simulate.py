@@ -20,35 +20,34 @@ from uavcal_jax.data import (
     read_euroc,
     read_sensor_yaml,
 )
-from uavcal_jax.data.sequence import CameraCalibration, GroundTruth, ImuCalibration, ImuData
-from uavcal_jax.data.targets import TargetLabels
-from uavcal_jax.data.tum import read_tum
-from uavcal_jax.errors import DataError, DataRepairWarning
-from uavcal_jax.geometry.camera import euroc_calibration
-from uavcal_jax.sim.imu_synth import ImuNoise, synthesize_imu
-from uavcal_jax.sim.simulate import (
-    SimConfig,
-    camera_calibrations,
-    imu_calibration,
-    load_flight,
-    scale_calibration,
-    simulate,
-    simulate_report,
-    stage_seeds,
-)
-from uavcal_jax.sim.writer import (
-    GROUND_TRUTH_HEADER,
-    IMU_HEADER,
+from uavcal_jax.data.euroc_format import GROUND_TRUTH_HEADER, IMU_HEADER
+from uavcal_jax.data.euroc_rig import euroc_calibration
+from uavcal_jax.data.euroc_writer import (
     EurocWriter,
     camera_sensor_yaml,
     depth_to_millimetres,
     ground_truth_sensor_yaml,
     imu_sensor_yaml,
 )
+from uavcal_jax.data.sequence import CameraCalibration, GroundTruth, ImuCalibration, ImuData
+from uavcal_jax.data.targets import TargetLabels
+from uavcal_jax.data.tum import read_tum
+from uavcal_jax.errors import DataError, DataRepairWarning
+from uavcal_jax.imu.noise import ImuNoise
+from uavcal_jax.sim.config import (
+    SimConfig,
+    camera_calibrations,
+    scale_calibration,
+    sensor_model,
+    stage_seeds,
+)
+from uavcal_jax.sim.imu_synth import synthesize_imu
+from uavcal_jax.sim.simulate import imu_calibration, load_flight, simulate, simulate_report
 
-EUROC_IMU = ImuCalibration(rate_hz=200.0, T_BS=np.eye(4), gyroscope_noise_density=1.6968e-04,
-                           gyroscope_random_walk=1.9393e-05,
-                           accelerometer_noise_density=2.0e-3, accelerometer_random_walk=3.0e-3)
+EUROC_IMU = ImuCalibration(rate_hz=200.0, T_BS=np.eye(4),
+                           noise=ImuNoise(gyro_noise_density=1.6968e-04,
+                                          gyro_random_walk=1.9393e-05,
+                                          accel_noise_density=2.0e-3, accel_random_walk=3.0e-3))
 
 
 def _read_strict(root):
@@ -145,8 +144,8 @@ def test_writer_round_trip(tmp_path):
     np.testing.assert_array_equal(seq.imu.t_ns, imu.t_ns)
     np.testing.assert_array_equal(seq.imu.gyro, imu.gyro)
     np.testing.assert_array_equal(seq.imu.accel, imu.accel)
-    assert seq.imu_calibration.gyroscope_noise_density == EUROC_IMU.gyroscope_noise_density
-    assert seq.imu_calibration.accelerometer_random_walk == EUROC_IMU.accelerometer_random_walk
+    assert seq.imu_calibration.noise.gyro_noise_density == EUROC_IMU.noise.gyro_noise_density
+    assert seq.imu_calibration.noise.accel_random_walk == EUROC_IMU.noise.accel_random_walk
     for name in ("position", "quaternion", "velocity", "bias_gyro", "bias_accel"):
         np.testing.assert_array_equal(getattr(seq.ground_truth, name), getattr(gt, name))
     cam = seq.cameras["cam0"]
@@ -244,6 +243,11 @@ def test_simulation_reads_back(small_sim):
     resolved = json.loads((root / "sim_config.json").read_text())
     assert resolved["config"] == SMALL.to_dict()
     assert resolved["counts"]["frames"] == n_cam
+    # the camera model is on by default and recorded
+    camera = resolved["camera_model"]
+    assert not camera["ideal"] and camera["noise"] and camera["blur_samples"] == SMALL.blur_samples
+    assert camera["sensor"] == json.loads(json.dumps(sensor_model(SMALL).to_dict()))
+    assert camera["noise_seed"] == stage_seeds(SMALL.seed)["camera"] == resolved["seeds"]["camera"]
 
 
 def _assert_imu_calib_equal(a: ImuCalibration, b: ImuCalibration) -> None:

@@ -42,7 +42,8 @@ class DemoStep:
 
 
 def _simulate(ctx: dict[str, Any]) -> dict[str, Any]:
-    from uavcal_jax.sim.simulate import SimConfig, simulate_report
+    from uavcal_jax.sim.config import SimConfig
+    from uavcal_jax.sim.simulate import simulate_report
 
     config = SimConfig(duration=DEMO_DURATION_S, resolution=DEMO_RESOLUTION,
                        seed=ctx["args"].seed, batch_size=10)

@@ -11,15 +11,17 @@ from typing import Any
 import numpy as np
 
 from uavcal_jax.argtypes import print_json
+from uavcal_jax.data.timing import CAMERA_GAP_FACTOR, IMU_GAP_FACTOR
 from uavcal_jax.errors import DataRepairWarning
 
-DESCRIPTION = """\
+DESCRIPTION = f"""\
 Summarise a recording: frames per camera, IMU and ground-truth sample counts, nominal
-(sensor.yaml) and measured rates, time spans, gaps (IMU intervals longer than 3 periods,
-camera intervals longer than 1.5 periods), calibration (intrinsics, distortion, resolution,
-T_BS, IMU noise model), and whether ground truth, depth and target labels are present.
-Repairs the reader made (dropped rows or frames) are listed as warnings. SEQUENCE is an
-EuRoC/ASL folder (holding mav0, or mav0 itself), a ROS 1 .bag file or a ROS 2 bag folder."""
+(sensor.yaml) and measured rates, time spans, gaps (IMU intervals longer than
+{IMU_GAP_FACTOR:g} periods, camera intervals longer than {CAMERA_GAP_FACTOR:g} periods),
+calibration (intrinsics, distortion, resolution, T_BS, IMU noise model), and whether ground
+truth, depth and target labels are present. Repairs the reader made (dropped rows or frames)
+are listed as warnings. SEQUENCE is an EuRoC/ASL folder (holding mav0, or mav0 itself), a ROS 1
+.bag file or a ROS 2 bag folder."""
 
 EPILOG = """\
 examples:
@@ -107,8 +109,6 @@ def _timing(t_ns: np.ndarray, nominal_hz: float | None, gap_factor: float) -> di
 
 
 def _camera_summary(stream) -> dict[str, Any]:
-    from uavcal_jax.data.euroc import CAMERA_GAP_FACTOR
-
     cal = stream.calibration
     return {
         "frames": len(stream),
@@ -127,8 +127,6 @@ def _camera_summary(stream) -> dict[str, Any]:
 def summarize(sequence, fmt: str = "euroc", warnings_seen: list[str] | None = None
               ) -> dict[str, Any]:
     """A JSON-ready summary of a :class:`~uavcal_jax.data.sequence.Sequence`."""
-    from uavcal_jax.data.euroc import IMU_GAP_FACTOR
-
     out: dict[str, Any] = {
         "sequence": sequence.name,
         "path": str(sequence.root) if sequence.root is not None else None,
@@ -144,13 +142,11 @@ def summarize(sequence, fmt: str = "euroc", warnings_seen: list[str] | None = No
             "calibration": None,
         }
         if cal is not None:
-            imu["calibration"] = {
-                "T_BS": np.asarray(cal.T_BS).tolist(),
-                "gyroscope_noise_density": cal.gyroscope_noise_density,
-                "gyroscope_random_walk": cal.gyroscope_random_walk,
-                "accelerometer_noise_density": cal.accelerometer_noise_density,
-                "accelerometer_random_walk": cal.accelerometer_random_walk,
-            }
+            from uavcal_jax.data.yaml_io import imu_noise_to_yaml
+
+            # the noise model under the sensor.yaml key names the recording states it with
+            imu["calibration"] = {"T_BS": np.asarray(cal.T_BS).tolist(),
+                                  **imu_noise_to_yaml(cal.noise)}
         out["imu"] = imu
     else:
         out["imu"] = None

@@ -7,18 +7,27 @@ import time
 from pathlib import Path
 
 from uavcal_jax.argtypes import parse_resolution, positive, positive_int, print_json
+from uavcal_jax.data import euroc_format as fmt
+from uavcal_jax.data.euroc_rig import EUROC_RESOLUTION
 from uavcal_jax.errors import DataError
+from uavcal_jax.sim.config import COLORS, SimConfig
 
-DESCRIPTION = """\
+#: The option defaults, from :class:`SimConfig` (one place for each).
+_D = SimConfig()
+
+DESCRIPTION = f"""\
 Simulate a flight and write it as an EuRoC ASL folder: DIR/mav0 with cam0 and cam1 (EuRoC's
 VI-sensor intrinsics, radial-tangential distortion and extrinsics; frames rendered at
 T_WC = T_WB(t) @ T_BS), depth0/depth1 (uint16 PNG, z-depth in millimetres, 0 = none), imu0
-(200 Hz, EuRoC's ADIS16448 noise model), state_groundtruth_estimate0 (17 columns: position,
-quaternion w,x,y,z, velocity, the IMU's true gyro and accel biases) and target0 (per frame and
-camera: boxes of the targets' visible pixels and their 3D world positions). The resolved
-configuration is written to DIR/sim_config.json. Read the result with `uavcal info DIR`.
+({_D.imu_rate_hz:g} Hz, EuRoC's ADIS16448 noise model), {fmt.GROUND_TRUTH_FOLDER}
+({fmt.GROUND_TRUTH_FIELDS} columns: position, quaternion w,x,y,z, velocity, the IMU's true gyro
+and accel biases) and target0 (per frame and camera: boxes of the targets' visible pixels and
+their 3D world positions). The resolved configuration is written to DIR/sim_config.json. Read
+the result with `uavcal info DIR`.
 
-The flight is a TUM trajectory file (--trajectory) or a procedural flight from --seed. The
+The flight is a TUM trajectory file (--trajectory) or a procedural flight from --seed. Frames
+image like EuRoC's MT9V034 (exposure x gain calibrated to the real V1_01 frames' brightness,
+shot and read noise measured on them, motion blur over the exposure) unless --ideal-camera. The
 same options and seed give byte-identical files. The output is written to a temporary folder
 beside DIR and renamed at the end: a folder named DIR is always complete."""
 
@@ -30,66 +39,98 @@ examples:
 
 
 def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options that build a :class:`~uavcal_jax.sim.simulate.SimConfig` (shared with
-    other commands that simulate)."""
+    """The options that build a :class:`~uavcal_jax.sim.config.SimConfig`; every default is
+    the dataclass field's."""
     g = parser.add_argument_group("flight")
-    g.add_argument("--trajectory", metavar="FILE",
+    g.add_argument("--trajectory", metavar="FILE", default=_D.trajectory,
                    help="TUM trajectory to fly (lines 't tx ty tz qx qy qz qw', t in seconds; "
                         "e.g. a EuRoC ground truth). The output keeps the file's own "
                         "timestamps. Default: a procedural flight (hover, turns, climbs, "
                         "straight legs) generated from --seed.")
+    # None (not given) so that --start without --trajectory can be refused
     g.add_argument("--start", type=float, default=None, metavar="S",
                    help="with --trajectory: start S seconds after the file's first timestamp "
-                        "(relative, not the file's absolute clock) [default: 0]")
-    g.add_argument("--duration", type=positive, default=10.0, metavar="S",
-                   help="seconds of flight to simulate [default: 10]; with --trajectory, "
-                        "--start + --duration must lie within the file")
-    g.add_argument("--seed", type=int, default=0,
+                        f"(relative, not the file's absolute clock) [default: {_D.start:g}]")
+    g.add_argument("--duration", type=positive, default=_D.duration, metavar="S",
+                   help=f"seconds of flight to simulate [default: {_D.duration:g}]; with "
+                        "--trajectory, --start + --duration must lie within the file")
+    g.add_argument("--seed", type=int, default=_D.seed,
                    help="seeds the procedural flight, the IMU noise and biases, and the scene "
-                        "[default: 0]")
+                        f"[default: {_D.seed}]")
     g = parser.add_argument_group("sensors")
-    g.add_argument("--resolution", type=parse_resolution, default=(752, 480), metavar="WxH",
-                   help="frame size; other than EuRoC's 752x480 the intrinsics are scaled "
-                        "(same field of view) [default: 752x480]")
-    g.add_argument("--color", choices=("gray", "rgb"), default="gray",
-                   help="8-bit gray frames (like EuRoC) or RGB [default: gray]")
-    g.add_argument("--camera-rate", type=positive, default=20.0, metavar="HZ",
-                   help="frame rate of cam0/cam1 [default: 20]")
-    g.add_argument("--imu-rate", type=positive, default=200.0, metavar="HZ",
-                   help="IMU and ground-truth rate [default: 200]")
-    g.add_argument("--no-imu-noise", action="store_true",
+    w, h = _D.resolution
+    g.add_argument("--resolution", type=parse_resolution, default=_D.resolution, metavar="WxH",
+                   help="frame size; other than EuRoC's {}x{} the intrinsics are scaled (same "
+                        "field of view) [default: {}x{}]".format(*EUROC_RESOLUTION, w, h))
+    g.add_argument("--color", choices=COLORS, default=_D.color,
+                   help=f"8-bit gray frames (like EuRoC) or RGB [default: {_D.color}]")
+    g.add_argument("--camera-rate", type=positive, default=_D.camera_rate_hz, metavar="HZ",
+                   help=f"frame rate of cam0/cam1 [default: {_D.camera_rate_hz:g}]")
+    g.add_argument("--imu-rate", type=positive, default=_D.imu_rate_hz, metavar="HZ",
+                   help=f"IMU and ground-truth rate [default: {_D.imu_rate_hz:g}]")
+    g.add_argument("--no-imu-noise", dest="imu_noise", action="store_false",
+                   default=_D.imu_noise,
                    help="exact IMU: no white noise, no bias (default: EuRoC ADIS16448 noise "
                         "densities, bias random walks and turn-on biases; the true biases are "
                         "in the ground truth)")
-    g.add_argument("--no-frames", action="store_true",
+    g.add_argument("--no-frames", dest="frames", action="store_false", default=_D.frames,
                    help="write only the IMU and the ground truth (no cameras, depth, labels)")
-    g.add_argument("--no-depth", action="store_true", help="do not write depth0/depth1")
-    g.add_argument("--no-targets", action="store_true", help="do not write target0 labels")
+    g.add_argument("--no-depth", dest="depth", action="store_false", default=_D.depth,
+                   help="do not write depth0/depth1")
+    g.add_argument("--no-targets", dest="targets", action="store_false", default=_D.targets,
+                   help="do not write target0 labels")
+    g = parser.add_argument_group(
+        "camera (EuRoC's MT9V034: exposure x gain, shot and read noise, 8-bit quantisation, "
+        "motion blur over the exposure)")
+    g.add_argument("--ideal-camera", action="store_true", default=_D.ideal_camera,
+                   help="write the noise-free, sharp rendered image instead (no exposure, "
+                        "noise or blur; the options below are ignored)")
+    g.add_argument("--exposure", type=positive, default=_D.exposure_ms, metavar="MS",
+                   help="exposure time, milliseconds (EuRoC's auto-exposure: about 1-10 ms "
+                        f"indoors) [default: {_D.exposure_ms:g}]")
+    g.add_argument("--gain", type=positive, default=_D.gain,
+                   help="analog gain: brightness and noise scale with it "
+                        f"[default: {_D.gain:g}]")
+    g.add_argument("--no-sensor-noise", dest="sensor_noise", action="store_false",
+                   default=_D.sensor_noise, help="no shot or read noise (exposure, gain, "
+                   "quantisation and blur stay)")
+    g.add_argument("--blur-samples", type=positive_int, default=_D.blur_samples, metavar="N",
+                   help="sub-exposures averaged for motion blur, 1 = none "
+                        f"[default: {_D.blur_samples}]")
+    g = parser.add_argument_group("speed (do not change the output)")
+    g.add_argument("--batch", type=positive_int, default=_D.batch_size, metavar="N",
+                   help=f"frames rendered per compiled call [default: {_D.batch_size}]")
+    g.add_argument("--workers", type=positive_int, default=_D.png_workers, metavar="N",
+                   help="threads encoding PNGs while the next batch renders "
+                        f"[default: {_D.png_workers}]")
 
 
-def config_from_args(args: argparse.Namespace):
-    """A :class:`~uavcal_jax.sim.simulate.SimConfig` from :func:`add_sim_arguments`' options."""
-    from uavcal_jax.sim.simulate import SimConfig
-
+def config_from_args(args: argparse.Namespace) -> SimConfig:
+    """A :class:`~uavcal_jax.sim.config.SimConfig` from :func:`add_sim_arguments`' options."""
     if args.start is not None and args.trajectory is None:
         raise DataError("--start needs --trajectory (a procedural flight has no file clock)")
     if args.start is not None and args.start < 0:
         raise DataError(f"--start must be >= 0 seconds, got {args.start:g}", args.trajectory)
     return SimConfig(
         trajectory=args.trajectory,
-        start=0.0 if args.start is None else float(args.start),
+        start=_D.start if args.start is None else float(args.start),
         duration=float(args.duration),
         resolution=tuple(args.resolution),
         color=args.color,
         seed=int(args.seed),
-        imu_noise=not args.no_imu_noise,
-        frames=not args.no_frames,
-        depth=not args.no_depth,
-        targets=not args.no_targets,
+        imu_noise=args.imu_noise,
+        frames=args.frames,
+        depth=args.depth,
+        targets=args.targets,
         camera_rate_hz=float(args.camera_rate),
         imu_rate_hz=float(args.imu_rate),
-        batch_size=int(getattr(args, "batch", 8)),
-        png_workers=int(getattr(args, "workers", 2)),
+        ideal_camera=bool(args.ideal_camera),
+        exposure_ms=float(args.exposure),
+        gain=float(args.gain),
+        sensor_noise=bool(args.sensor_noise),
+        blur_samples=int(args.blur_samples),
+        batch_size=int(args.batch),
+        png_workers=int(args.workers),
     )
 
 
@@ -104,18 +145,13 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace DIR if it holds a previous simulation")
     add_sim_arguments(p)
-    g = p.add_argument_group("speed (do not change the output)")
-    g.add_argument("--batch", type=positive_int, default=8, metavar="N",
-                   help="frames rendered per compiled call [default: 8]")
-    g.add_argument("--workers", type=positive_int, default=2, metavar="N",
-                   help="threads encoding PNGs while the next batch renders [default: 2]")
     p.add_argument("--json", action="store_true",
                    help="print one JSON summary line and no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from uavcal_jax.sim.simulate import simulate_report
+    from uavcal_jax.sim.simulate import simulate_report  # JAX and the renderer: only to run
 
     config = config_from_args(args)
     try:

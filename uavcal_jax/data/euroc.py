@@ -1,7 +1,8 @@
 """EuRoC / ASL folder reader (``mav0/cam0``, ``imu0``, ``state_groundtruth_estimate0`` ...).
 
 :func:`read_euroc` reads a recording in the ASL layout (the EuRoC MAV data set, Kalibr, and
-this project's simulator) into a :class:`~uavcal_jax.data.sequence.Sequence`:
+this project's simulator; names and headers in :mod:`uavcal_jax.data.euroc_format`, the writer
+is :mod:`uavcal_jax.data.euroc_writer`) into a :class:`~uavcal_jax.data.sequence.Sequence`:
 
 * ``camN/`` (every ``cam<digits>`` folder): ``data.csv`` (``#timestamp [ns],filename``),
   ``data/<file>.png`` and ``sensor.yaml``. Frames are *not* read here; each
@@ -38,23 +39,22 @@ Bad-input policy (``DataError`` names the file, and the 1-based line where there
   them (the real EuRoC micro sequence's ``cam1`` lists 4 frames it does not ship).
 * A corrupt or truncated image: ``DataError`` naming the image, raised when it is loaded.
   An image whose size differs from ``sensor.yaml``'s resolution: ``DataError`` naming the image
-  and both sizes, when loaded; the first frame's PNG header is also checked at read time.
+  and both sizes, when loaded; the first frame's image header is also checked at read time.
 """
 
 from __future__ import annotations
 
 import os
 import re
-import struct
 from collections.abc import Callable
-from dataclasses import dataclass
-from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
+from uavcal_jax.data import euroc_format as fmt
+from uavcal_jax.data.image_header import image_size
 from uavcal_jax.data.sequence import (
     CameraCalibration,
     FrameStream,
@@ -63,197 +63,24 @@ from uavcal_jax.data.sequence import (
     ImuData,
     Sequence,
 )
+from uavcal_jax.data.table import drop_non_finite, ordered, read_table
 from uavcal_jax.data.targets import read_target_labels
 from uavcal_jax.data.timing import (
-    check_order,
+    CAMERA_GAP_FACTOR,
+    IMU_GAP_FACTOR,
     describe_gaps,
     find_gaps,
     list_lines,
     nominal_period_ns,
     repair,
 )
-from uavcal_jax.data.yaml_io import matrix_from_yaml, read_opencv_yaml
+from uavcal_jax.data.yaml_io import (
+    IMU_NOISE_KEYS,
+    imu_noise_from_yaml,
+    matrix_from_yaml,
+    read_opencv_yaml,
+)
 from uavcal_jax.errors import DataError
-
-#: IMU gaps longer than this many nominal periods are reported.
-IMU_GAP_FACTOR = 3.0
-#: Camera gaps (dropped frames) longer than this many nominal periods are reported.
-CAMERA_GAP_FACTOR = 1.5
-
-GROUND_TRUTH_FOLDER = "state_groundtruth_estimate0"
-_CAM_RE = re.compile(r"^cam\d+$")
-_DEPTH_RE = re.compile(r"^depth\d+$")
-
-
-# --------------------------------------------------------------------------------------------
-# CSV tables
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Table:
-    """Rows of a timestamped text table, after the bad-input policy.
-
-    Attributes:
-        path: the file.
-        t_ns: (N,) int64 timestamps.
-        values: (N, k) float64 (numeric tables) or (N, k) str (``numeric=False``).
-        lines: (N,) int64 1-based line numbers of the rows in the file.
-    """
-
-    path: Path
-    t_ns: np.ndarray
-    values: np.ndarray
-    lines: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.t_ns.shape[0])
-
-    def take(self, idx: np.ndarray) -> Table:
-        return Table(self.path, self.t_ns[idx], self.values[idx], self.lines[idx])
-
-
-def _parse_seconds_ns(text: str) -> int:
-    """Exact int nanoseconds from decimal seconds text (round half to even)."""
-    value = Decimal(text.strip()) * 1_000_000_000
-    if not value.is_finite():
-        raise ValueError(f"non-finite time {text!r}")
-    return int(value.to_integral_value())
-
-
-def read_table(path: str | Path, n_fields: int, *, sep: str | None = ",",
-               time_unit: str = "ns", numeric: bool = True, strict: bool = False) -> Table:
-    """Read a timestamped text table (EuRoC CSV, TUM text) with line-exact error messages.
-
-    Blank lines and lines starting with ``#`` are skipped. The first field is the timestamp:
-    integer nanoseconds (``time_unit="ns"``) or decimal seconds converted exactly to int64
-    nanoseconds (``time_unit="s"``). The other ``n_fields - 1`` fields are float64 (or kept as
-    stripped strings when ``numeric=False``).
-
-    Args:
-        sep: field separator; ``None`` splits on whitespace.
-
-    Raises:
-        DataError: missing/unreadable file, or a malformed row other than the last one (a
-            malformed *last* row is dropped with a ``DataRepairWarning``, unless ``strict``).
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise DataError("missing file", path)
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataError(f"cannot read text file: {err}", path) from None
-
-    body: list[str] = []
-    linenos: list[int] = []
-    for lineno, raw in enumerate(text.split("\n"), start=1):
-        line = raw.strip()
-        if line and not line.startswith("#"):
-            body.append(line)
-            linenos.append(lineno)
-    fields = [ln.split(sep) for ln in body]
-    if sep is not None:
-        fields = [[f.strip() for f in row] for row in fields]
-
-    def bad_row(k: int, reason: str) -> None:
-        if k == len(body) - 1:
-            repair(f"dropped the truncated last row (line {linenos[k]}: {reason})", path,
-                   strict=strict, stacklevel=5)
-        else:
-            raise DataError(f"malformed row: {reason}", path, row=linenos[k])
-
-    # Field counts.
-    wrong = [k for k, row in enumerate(fields) if len(row) != n_fields]
-    for k in wrong:
-        bad_row(k, f"{len(fields[k])} fields, expected {n_fields}")
-    if wrong:  # only the last row can get here
-        fields, linenos = fields[:-1], linenos[:-1]
-        body = body[:-1]
-
-    n = len(fields)
-    if n == 0:
-        return Table(path, np.zeros(0, np.int64),
-                     np.zeros((0, n_fields - 1), np.float64 if numeric else str),
-                     np.zeros(0, np.int64))
-
-    # Fast vectorised conversion; on failure, locate the first bad row.
-    try:
-        if time_unit == "ns":
-            t_ns = np.array([row[0] for row in fields]).astype(np.int64)
-        elif time_unit == "s":
-            t_ns = np.array([_parse_seconds_ns(row[0]) for row in fields], dtype=np.int64)
-        else:
-            raise ValueError(f"time_unit must be 'ns' or 's', got {time_unit!r}")
-        if numeric:
-            values = np.array([row[1:] for row in fields], dtype=np.float64)
-        else:
-            values = np.array([row[1:] for row in fields], dtype=str)
-        if not numeric and (values == "").any():
-            raise ValueError("empty field")
-    except (ValueError, OverflowError, InvalidOperation, ArithmeticError):
-        if time_unit not in ("ns", "s"):
-            raise
-        keep = np.ones(n, dtype=bool)
-        for k, row in enumerate(fields):
-            reason = _row_error(row, time_unit, numeric)
-            if reason is not None:
-                bad_row(k, reason)
-                keep[k] = False  # only the last row
-        fields = [row for k, row in enumerate(fields) if keep[k]]
-        linenos = [ln for k, ln in enumerate(linenos) if keep[k]]
-        return read_table_from_fields(path, fields, linenos, time_unit, numeric, n_fields)
-    return Table(path, t_ns, values.reshape(n, n_fields - 1), np.asarray(linenos, np.int64))
-
-
-def _row_error(row: list[str], time_unit: str, numeric: bool) -> str | None:
-    try:
-        if time_unit == "ns":
-            int(row[0])
-        else:
-            _parse_seconds_ns(row[0])
-    except (ValueError, InvalidOperation, ArithmeticError):
-        return f"bad timestamp {row[0]!r}"
-    if numeric:
-        for j, v in enumerate(row[1:], start=2):
-            try:
-                float(v)
-            except ValueError:
-                return f"field {j} is not a number: {v!r}"
-    elif any(v == "" for v in row[1:]):
-        return "empty field"
-    return None
-
-
-def read_table_from_fields(path: Path, fields: list[list[str]], linenos: list[int],
-                           time_unit: str, numeric: bool, n_fields: int) -> Table:
-    n = len(fields)
-    if time_unit == "ns":
-        t_ns = np.array([int(row[0]) for row in fields], dtype=np.int64)
-    else:
-        t_ns = np.array([_parse_seconds_ns(row[0]) for row in fields], dtype=np.int64)
-    dtype = np.float64 if numeric else str
-    values = np.array([row[1:] for row in fields], dtype=dtype).reshape(n, n_fields - 1)
-    return Table(path, t_ns.reshape(n), values, np.asarray(linenos, np.int64).reshape(n))
-
-
-def drop_non_finite(table: Table, *, strict: bool, what: str = "rows") -> Table:
-    """Drop rows with NaN/inf values (one warning listing the lines; ``DataError`` if strict)."""
-    if len(table) == 0:
-        return table
-    bad = ~np.all(np.isfinite(table.values), axis=1)
-    if not bad.any():
-        return table
-    repair(f"dropped {int(bad.sum())} {what} with NaN/inf values: {list_lines(table.lines[bad])}",
-           table.path, strict=strict, stacklevel=4)
-    return table.take(np.flatnonzero(~bad))
-
-
-def ordered(table: Table, *, strict: bool) -> Table:
-    """Apply the timestamp-order policy of :func:`uavcal_jax.data.timing.check_order`."""
-    keep = check_order(table.t_ns, table.lines, table.path, table.values, strict=strict)
-    return table if keep.shape[0] == len(table) else table.take(keep)
-
 
 # --------------------------------------------------------------------------------------------
 # sensor.yaml
@@ -331,29 +158,13 @@ def imu_calibration_from_yaml(data: dict[str, Any], path: str | Path | None = No
     return ImuCalibration(
         rate_hz=_number(data, "rate_hz", path),
         T_BS=_T_BS(data, path),
-        gyroscope_noise_density=_number(data, "gyroscope_noise_density", path),
-        gyroscope_random_walk=_number(data, "gyroscope_random_walk", path),
-        accelerometer_noise_density=_number(data, "accelerometer_noise_density", path),
-        accelerometer_random_walk=_number(data, "accelerometer_random_walk", path),
+        noise=imu_noise_from_yaml({key: _number(data, key, path) for key in IMU_NOISE_KEYS}),
     )
 
 
 # --------------------------------------------------------------------------------------------
 # Images
 # --------------------------------------------------------------------------------------------
-
-
-def png_size(path: Path) -> tuple[int, int] | None:
-    """``(width, height)`` from a PNG header without decoding, or ``None`` if not a PNG."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(24)
-    except OSError:
-        return None
-    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
-        return None
-    w, h = struct.unpack(">II", head[16:24])
-    return int(w), int(h)
 
 
 def load_image(path: str | Path, color: str = "gray",
@@ -389,7 +200,7 @@ def load_depth(path: str | Path, resolution: tuple[int, int] | None = None) -> n
         raise DataError(f"expected a single-channel uint16 depth PNG (millimetres), got "
                         f"{img.dtype} with shape {img.shape}", path)
     _check_size(img, path, resolution)
-    return img.astype(np.float32) * np.float32(1e-3)
+    return img.astype(np.float32) * np.float32(fmt.DEPTH_SCALE_M)
 
 
 def _check_size(img: np.ndarray, path: Path, resolution: tuple[int, int] | None) -> None:
@@ -414,11 +225,11 @@ def find_mav0(root: str | Path) -> Path:
         raise DataError("no such folder", root)
     if not root.is_dir():
         raise DataError("not a folder (expected an EuRoC/ASL folder holding mav0)", root)
-    if (root / "mav0").is_dir():
-        return root / "mav0"
-    if root.name == "mav0" or (root / "imu0").is_dir():
+    if (root / fmt.MAV0).is_dir():
+        return root / fmt.MAV0
+    if root.name == fmt.MAV0 or (root / fmt.IMU_FOLDER).is_dir():
         return root
-    raise DataError("not an EuRoC/ASL folder: no mav0 sub-folder", root / "mav0")
+    raise DataError(f"not an EuRoC/ASL folder: no {fmt.MAV0} sub-folder", root / fmt.MAV0)
 
 
 def sensor_folders(mav0: Path, pattern: re.Pattern) -> list[Path]:
@@ -429,11 +240,11 @@ def sensor_folders(mav0: Path, pattern: re.Pattern) -> list[Path]:
 
 def _read_image_stream(folder: Path, *, depth: bool, strict: bool) -> FrameStream:
     """One ``camN`` / ``depthN`` folder as a lazily loaded stream."""
-    yaml_path = folder / "sensor.yaml"
+    yaml_path = folder / fmt.SENSOR_YAML
     calib = camera_calibration_from_yaml(read_sensor_yaml(yaml_path), yaml_path)
-    table = read_table(folder / "data.csv", 2, numeric=False, strict=strict)
+    table = read_table(folder / fmt.DATA_CSV, fmt.IMAGE_FIELDS, numeric=False, strict=strict)
     table = ordered(table, strict=strict)
-    data_dir = folder / "data"
+    data_dir = folder / fmt.IMAGE_FOLDER
     if not data_dir.is_dir():
         raise DataError("missing image folder", data_dir)
 
@@ -458,7 +269,10 @@ def _read_image_stream(folder: Path, *, depth: bool, strict: bool) -> FrameStrea
 
     paths = tuple(data_dir / name for name in names)
     if paths:
-        size = png_size(paths[0])
+        try:
+            size = image_size(paths[0])
+        except DataError:
+            size = None  # a corrupt image is reported when it is loaded (module docstring)
         if size is not None and size != calib.resolution:
             raise DataError(
                 f"image is {size[0]}x{size[1]} but sensor.yaml says "
@@ -482,9 +296,9 @@ def read_imu_folder(folder: Path, *, strict: bool = False
     """``imu0``: samples (after the bad-input policy) and calibration."""
     if not folder.is_dir():
         raise DataError("missing IMU folder", folder)
-    yaml_path = folder / "sensor.yaml"
+    yaml_path = folder / fmt.SENSOR_YAML
     calib = imu_calibration_from_yaml(read_sensor_yaml(yaml_path), yaml_path)
-    table = read_table(folder / "data.csv", 7, strict=strict)
+    table = read_table(folder / fmt.DATA_CSV, fmt.IMU_FIELDS, strict=strict)
     table = ordered(table, strict=strict)
     table = drop_non_finite(table, strict=strict, what="IMU samples")
     gaps = find_gaps(table.t_ns, nominal_period_ns(calib.rate_hz, table.t_ns), IMU_GAP_FACTOR)
@@ -498,7 +312,7 @@ def read_imu_folder(folder: Path, *, strict: bool = False
 
 def read_ground_truth_csv(path: str | Path, *, strict: bool = False) -> GroundTruth:
     """EuRoC ``state_groundtruth_estimate0/data.csv`` (17 columns) as :class:`GroundTruth`."""
-    table = read_table(path, 17, strict=strict)
+    table = read_table(path, fmt.GROUND_TRUTH_FIELDS, strict=strict)
     table = ordered(table, strict=strict)
     table = drop_non_finite(table, strict=strict, what="ground-truth states")
     v = table.values
@@ -514,7 +328,7 @@ def read_ground_truth_csv(path: str | Path, *, strict: bool = False) -> GroundTr
 
 def sequence_name(root: str | Path) -> str:
     root = Path(root).resolve()
-    return root.parent.name if root.name == "mav0" else root.name
+    return root.parent.name if root.name == fmt.MAV0 else root.name
 
 
 def read_euroc(root: str | Path, *, strict: bool = False) -> Sequence:
@@ -534,14 +348,15 @@ def read_euroc(root: str | Path, *, strict: bool = False) -> Sequence:
     """
     mav0 = find_mav0(root)
     cameras = {p.name: _read_image_stream(p, depth=False, strict=strict)
-               for p in sensor_folders(mav0, _CAM_RE)}
+               for p in sensor_folders(mav0, fmt.CAMERA_FOLDER)}
     depth = {p.name: _read_image_stream(p, depth=True, strict=strict)
-             for p in sensor_folders(mav0, _DEPTH_RE)}
-    imu, imu_calib = read_imu_folder(mav0 / "imu0", strict=strict)
-    gt_dir = mav0 / GROUND_TRUTH_FOLDER
-    ground_truth = read_ground_truth_csv(gt_dir / "data.csv", strict=strict) \
+             for p in sensor_folders(mav0, fmt.DEPTH_FOLDER)}
+    imu, imu_calib = read_imu_folder(mav0 / fmt.IMU_FOLDER, strict=strict)
+    gt_dir = mav0 / fmt.GROUND_TRUTH_FOLDER
+    ground_truth = read_ground_truth_csv(gt_dir / fmt.DATA_CSV, strict=strict) \
         if gt_dir.is_dir() else None
-    targets = read_target_labels(mav0 / "target0") if (mav0 / "target0").is_dir() else None
+    target_dir = mav0 / fmt.TARGET_FOLDER
+    targets = read_target_labels(target_dir) if target_dir.is_dir() else None
     return Sequence(
         name=sequence_name(mav0),
         root=Path(root),

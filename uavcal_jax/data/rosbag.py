@@ -40,7 +40,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from uavcal_jax.data.euroc import CAMERA_GAP_FACTOR, IMU_GAP_FACTOR
 from uavcal_jax.data.sequence import (
     CameraCalibration,
     FrameStream,
@@ -48,7 +47,14 @@ from uavcal_jax.data.sequence import (
     ImuData,
     Sequence,
 )
-from uavcal_jax.data.timing import describe_gaps, find_gaps, measured_rate_hz, nominal_period_ns
+from uavcal_jax.data.timing import (
+    CAMERA_GAP_FACTOR,
+    IMU_GAP_FACTOR,
+    describe_gaps,
+    find_gaps,
+    measured_rate_hz,
+    nominal_period_ns,
+)
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 IMU_TYPE = "sensor_msgs/msg/Imu"

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from uavcal_jax.errors import DataError
+from uavcal_jax.imu.noise import ImuNoise
 
 
 @dataclass(frozen=True)
@@ -45,21 +46,17 @@ class CameraCalibration:
 
 @dataclass(frozen=True)
 class ImuCalibration:
-    """IMU rate, extrinsics and continuous-time noise model (Kalibr / EuRoC convention).
+    """IMU rate, extrinsics and continuous-time noise model (Kalibr / EuRoC ``sensor.yaml``).
 
     Attributes:
-        gyroscope_noise_density: rad/s/sqrt(Hz).
-        gyroscope_random_walk: rad/s^2/sqrt(Hz).
-        accelerometer_noise_density: m/s^2/sqrt(Hz).
-        accelerometer_random_walk: m/s^3/sqrt(Hz).
+        rate_hz: nominal sample rate.
+        T_BS: (4, 4) sensor-to-body transform (identity when the body frame is the IMU frame).
+        noise: the noise densities and random walks, see :class:`~uavcal_jax.imu.noise.ImuNoise`.
     """
 
     rate_hz: float
     T_BS: np.ndarray
-    gyroscope_noise_density: float
-    gyroscope_random_walk: float
-    accelerometer_noise_density: float
-    accelerometer_random_walk: float
+    noise: ImuNoise
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from uavcal_jax.data.euroc_format import DATA_CSV
 from uavcal_jax.errors import DataError, DataRepairWarning
 
+#: One class name per line (line i is class id i).
+CLASSES_TXT = "classes.txt"
 HEADER = (
     "#timestamp [ns],camera,track_id,class_id,x_min,y_min,x_max,y_max,visible_pixels,"
     "p_W_x [m],p_W_y [m],p_W_z [m]"
@@ -67,7 +70,7 @@ def write_target_labels(folder: str | Path, labels: TargetLabels) -> None:
     """Write ``data.csv`` and ``classes.txt`` into ``folder`` (created if needed)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "classes.txt").write_text("".join(f"{name}\n" for name in labels.class_names))
+    (folder / CLASSES_TXT).write_text("".join(f"{name}\n" for name in labels.class_names))
     lines = [HEADER]
     for i in range(len(labels)):
         x0, y0, x1, y1 = labels.box[i]
@@ -77,13 +80,13 @@ def write_target_labels(folder: str | Path, labels: TargetLabels) -> None:
             f"{int(labels.class_id[i])},{x0:.2f},{y0:.2f},{x1:.2f},{y1:.2f},"
             f"{int(labels.visible_pixels[i])},{px:.6f},{py:.6f},{pz:.6f}"
         )
-    (folder / "data.csv").write_text("\n".join(lines) + "\n")
+    (folder / DATA_CSV).write_text("\n".join(lines) + "\n")
 
 
 def read_target_labels(folder: str | Path) -> TargetLabels:
     """Read a ``target0`` folder. Malformed rows are dropped with one warning listing them."""
     folder = Path(folder)
-    csv_path, classes_path = folder / "data.csv", folder / "classes.txt"
+    csv_path, classes_path = folder / DATA_CSV, folder / CLASSES_TXT
     for path in (csv_path, classes_path):
         if not path.is_file():
             raise DataError("missing target-label file", path)

@@ -23,6 +23,11 @@ import numpy as np
 
 from uavcal_jax.errors import DataError, DataRepairWarning
 
+#: IMU gaps longer than this many nominal periods are reported.
+IMU_GAP_FACTOR = 3.0
+#: Camera gaps (dropped frames) longer than this many nominal periods are reported.
+CAMERA_GAP_FACTOR = 1.5
+
 
 def repair(message: str, path: str | Path | None, *, strict: bool, stacklevel: int = 3) -> None:
     """Warn that input was repaired (``DataRepairWarning``), or raise ``DataError`` if strict."""

@@ -6,7 +6,7 @@ timestamps survive a round trip. Quaternions are stored x, y, z, w in the file a
 w, x, y, z (the project's convention). Fields are separated by whitespace (or commas, when the
 first data line has one).
 
-Bad-input policy (same as :mod:`uavcal_jax.data.euroc`): a malformed row is a
+Bad-input policy (that of :mod:`uavcal_jax.data.table`, as for EuRoC): a malformed row is a
 :class:`~uavcal_jax.errors.DataError` naming the file and 1-based line, except a truncated
 last row, which is dropped with a :class:`~uavcal_jax.errors.DataRepairWarning`; timestamps
 going backwards are an error; identical duplicated rows are dropped with a warning; rows with
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uavcal_jax.data.euroc import drop_non_finite, ordered, read_table
 from uavcal_jax.data.sequence import GroundTruth
+from uavcal_jax.data.table import drop_non_finite, ordered, read_table
 from uavcal_jax.errors import DataError
 
 HEADER = "# timestamp tx ty tz qx qy qz qw"

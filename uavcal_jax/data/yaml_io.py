@@ -6,11 +6,16 @@ matrices ``!!opencv-matrix`` (``{rows, cols, dt, data}``). :func:`read_opencv_ya
 directive (and a following ``---``), accepts the matrix tag, and returns plain Python values;
 :func:`matrix_from_yaml` turns a ``{rows, cols, data}`` mapping (or a flat / nested list) into an
 array. Any failure is a :class:`~uavcal_jax.errors.DataError` naming the file.
+
+An IMU ``sensor.yaml`` states its noise model under Kalibr's key names
+(``gyroscope_noise_density`` ...); :data:`IMU_NOISE_KEYS` maps them to the fields of
+:class:`~uavcal_jax.imu.noise.ImuNoise`, for the readers and the writer alike.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +23,16 @@ import numpy as np
 import yaml
 
 from uavcal_jax.errors import DataError
+from uavcal_jax.imu.noise import ImuNoise
+
+#: ``sensor.yaml`` key (Kalibr / EuRoC) -> :class:`ImuNoise` field, in the order EuRoC writes
+#: them.
+IMU_NOISE_KEYS = {
+    "gyroscope_noise_density": "gyro_noise_density",
+    "gyroscope_random_walk": "gyro_random_walk",
+    "accelerometer_noise_density": "accel_noise_density",
+    "accelerometer_random_walk": "accel_random_walk",
+}
 
 _DIRECTIVE = re.compile(r"^\s*%YAML[:\s]\s*\d+(\.\d+)?\s*$")
 
@@ -105,14 +120,13 @@ def matrix_from_yaml(value: Any, shape: tuple[int, int] | None = None, *,
     return mat
 
 
-def format_sensor_yaml_matrix(mat: np.ndarray, indent: int = 2) -> str:
-    """EuRoC-style text for a matrix entry body (``cols``, ``rows``, ``data``), for writers."""
-    mat = np.asarray(mat, dtype=np.float64)
-    rows, cols = mat.shape
-    pad = " " * indent
-    lines = [f"{pad}cols: {cols}", f"{pad}rows: {rows}"]
-    row_texts = [", ".join(repr(float(v)) for v in row) for row in mat]
-    lead = f"{pad}data: ["
-    body = (",\n" + " " * len(lead)).join(row_texts)
-    lines.append(f"{lead}{body}]")
-    return "\n".join(lines)
+def imu_noise_from_yaml(entries: Mapping[str, float]) -> ImuNoise:
+    """:class:`ImuNoise` from the four noise entries of an IMU ``sensor.yaml`` (any mapping
+    holding the keys of :data:`IMU_NOISE_KEYS`; the readers validate the numbers first)."""
+    return ImuNoise(**{name: float(entries[key]) for key, name in IMU_NOISE_KEYS.items()})
+
+
+def imu_noise_to_yaml(noise: ImuNoise) -> dict[str, float]:
+    """The four ``sensor.yaml`` noise entries of ``noise`` (scalar densities), keyed and
+    ordered as EuRoC writes them."""
+    return {key: float(getattr(noise, name)) for key, name in IMU_NOISE_KEYS.items()}

@@ -40,9 +40,6 @@ class Checkpoints:
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
 
-    def all_steps(self) -> list[int]:
-        return list(self._manager.all_steps())
-
     def restore(self, abstract_state: Any, step: int | None = None) -> tuple[Any, dict]:
         """``(state, meta)`` of ``step`` (default the latest) into the structure of
         ``abstract_state`` (a pytree of arrays or ``jax.ShapeDtypeStruct``)."""
@@ -53,13 +50,6 @@ class Checkpoints:
         out = self._manager.restore(step, args=ocp.args.Composite(
             state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))
         return out["state"], dict(out["meta"])
-
-    def restore_meta(self, step: int | None = None) -> dict:
-        step = self.latest_step() if step is None else step
-        if step is None:
-            raise DataError("no checkpoint saved yet", self.directory)
-        out = self._manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
-        return dict(out["meta"])
 
     def close(self) -> None:
         self._manager.close()

@@ -1,4 +1,9 @@
-"""Detector configuration: one frozen dataclass whose defaults are YOLOv5 v7.0's settings.
+"""The detector's configurations: the model, how it predicts, and how it is trained.
+
+:class:`DetectorConfig` defines a detector, its decoding and its loss; :class:`PredictConfig`
+the post-processing thresholds, with the two presets :data:`EVAL_PREDICT` (YOLOv5 ``val.py``,
+for mAP) and :data:`SERVE_PREDICT` (YOLOv5 ``detect.py``, for use); :class:`TrainConfig` a
+training run. Every default lives here; the CLI and the experiments read them from the fields.
 
 The loss gains are YOLOv5's ``hyp.scratch-low.yaml`` values (box 0.05, obj 1.0, cls 0.5);
 :meth:`DetectorConfig.scaled_gains` applies the scaling that v7.0's ``train.py`` does before
@@ -10,7 +15,11 @@ can be passed instead (``anchors=...``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import dataclasses
+from dataclasses import dataclass, field, replace
+
+from uavcal_jax.detect.augment import AugmentConfig
+from uavcal_jax.detect.metrics import COCO_MAX_DETS
 
 #: YOLOv5's default anchors (pixels), P3/8, P4/16, P5/32.
 YOLOV5_ANCHORS: tuple[tuple[tuple[float, float], ...], ...] = (
@@ -30,6 +39,9 @@ NECK_WIDTHS = {
     "yolov5n-like": (64, 128, 256),
 }
 NECK_DEPTH = {"yznet-yolo": 1, "yznet-yolo-tiny": 1, "yolov5n-like": 1}
+
+#: Depthwise-convolution implementations (see :class:`DetectorConfig`).
+DW_IMPLS = ("shift", "grouped")
 
 
 @dataclass(frozen=True)
@@ -84,8 +96,8 @@ class DetectorConfig:
             raise ValueError(f"img_size {self.img_size} must be multiples of 32")
         if len(self.anchors) != len(self.strides) or any(len(a) != 3 for a in self.anchors):
             raise ValueError("anchors must be 3 levels x 3 (w, h) pairs matching strides")
-        if self.dw_impl not in ("shift", "grouped"):
-            raise ValueError(f"dw_impl must be 'shift' or 'grouped', got {self.dw_impl!r}")
+        if self.dw_impl not in DW_IMPLS:
+            raise ValueError(f"dw_impl must be one of {DW_IMPLS}, got {self.dw_impl!r}")
         # Normalise anchors to nested tuples of floats (hashable; lists from JSON are fine).
         object.__setattr__(
             self,
@@ -157,3 +169,128 @@ def _listify(x):
     if isinstance(x, tuple | list):
         return [_listify(v) for v in x]
     return x
+
+
+# ----------------------------------------------------------------------------- prediction
+
+
+@dataclass(frozen=True)
+class PredictConfig:
+    """Post-processing of the head outputs (see :func:`uavcal_jax.detect.nms.postprocess`).
+
+    The defaults are YOLOv5 ``detect.py``'s, for use (:data:`SERVE_PREDICT`);
+    :data:`EVAL_PREDICT` is ``val.py``'s, for mAP.
+
+    Attributes:
+        conf_thresh: a candidate needs objectness and score (objectness x class probability)
+            above this.
+        iou_thresh: NMS suppresses a box overlapping a kept one of its class by IoU > this.
+        max_det: detections kept per image (the fixed output size).
+        multi_label: every (box, class) pair above ``conf_thresh`` is a candidate, instead of
+            each box's best class only.
+        agnostic: NMS across classes.
+        pre_nms_topk: the candidates entering NMS, best scores first.
+    """
+
+    conf_thresh: float = 0.25
+    iou_thresh: float = 0.45
+    max_det: int = 300
+    multi_label: bool = False
+    agnostic: bool = False
+    pre_nms_topk: int = 1000
+
+    def replace(self, **changes) -> PredictConfig:
+        return replace(self, **changes)
+
+
+#: For use: YOLOv5 ``detect.py`` (conf 0.25, IoU 0.45, 300 detections, best class per box).
+SERVE_PREDICT = PredictConfig()
+#: For mAP: YOLOv5 ``val.py`` (conf 0.001, IoU 0.6, multi-label).
+EVAL_PREDICT = PredictConfig(conf_thresh=0.001, iou_thresh=0.6, multi_label=True)
+
+
+# ----------------------------------------------------------------------------- training
+
+#: ``TrainConfig.optimizer``: the paper's RMSprop or YOLOv5's SGD.
+OPTIMIZERS = ("rmsprop", "sgd")
+#: ``TrainConfig.lr_schedule``: the per-epoch learning-rate decay.
+SCHEDULES = ("constant", "linear", "cosine")
+#: ``TrainConfig.select_metric``: the best-model criterion.
+SELECT_METRICS = ("map50_95", "map50", "fitness")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything about a training run except the model (:class:`DetectorConfig`).
+
+    The defaults are the paper's (RMSprop, lr 0.01, momentum 0.9, weight decay 1e-5,
+    batch 8); :meth:`yolov5` gives YOLOv5's SGD recipe. ``predict`` is how validation
+    predicts (:data:`EVAL_PREDICT`); ``map_max_dets`` the detections per image the mAP counts
+    (COCO's 100).
+    """
+
+    epochs: int = 100
+    batch_size: int = 8
+    optimizer: str = "rmsprop"
+    lr: float = 0.01
+    momentum: float = 0.9
+    weight_decay: float = 1e-5
+    rmsprop_decay: float = 0.9
+    rmsprop_eps: float = 1e-3
+    nesterov: bool = True
+    lr_schedule: str = "cosine"
+    lrf: float = 0.01
+    warmup_epochs: float = 3.0
+    warmup_min_steps: int = 100
+    warmup_bias_lr: float = 0.1
+    warmup_momentum: float = 0.8
+    grad_clip: float = 10.0
+    ema: bool = True
+    ema_decay: float = 0.9999
+    ema_tau: float = 2000.0
+    seed: int = 0
+    augment: AugmentConfig | None = field(default_factory=AugmentConfig)
+    val_fraction: float = 0.2
+    split_seed: int = 0
+    eval_every: int = 1
+    predict: PredictConfig = EVAL_PREDICT
+    map_max_dets: int = COCO_MAX_DETS
+    select_metric: str = "map50_95"
+    workers: int = 2
+    cache: bool = True
+    autoanchor: bool = True
+
+    def __post_init__(self):
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer must be one of {OPTIMIZERS}, not {self.optimizer!r}")
+        if self.lr_schedule not in SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {SCHEDULES}")
+        if self.select_metric not in SELECT_METRICS:
+            raise ValueError(f"select_metric must be one of {SELECT_METRICS}")
+        if self.epochs < 1 or self.batch_size < 1:
+            raise ValueError("epochs and batch_size must be >= 1")
+        if isinstance(self.augment, dict):  # read back from config.json
+            object.__setattr__(self, "augment", AugmentConfig(**self.augment))
+        if isinstance(self.predict, dict):
+            object.__setattr__(self, "predict", PredictConfig(**self.predict))
+
+    @classmethod
+    def paper(cls, **changes) -> TrainConfig:
+        """RPEOD section 6.2: RMSprop, lr 0.01, momentum 0.9, weight decay 1e-5, batch 8."""
+        return cls(**changes)
+
+    @classmethod
+    def yolov5(cls, **changes) -> TrainConfig:
+        """YOLOv5 v7.0 ``hyp.scratch-low``: Nesterov SGD, lr0 0.01, momentum 0.937, weight
+        decay 5e-4, 3 warmup epochs, linear decay to lrf 0.01."""
+        base = dict(optimizer="sgd", lr=0.01, momentum=0.937, weight_decay=5e-4,
+                    lr_schedule="linear", lrf=0.01)
+        return cls(**{**base, **changes})
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        kw = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
+        return cls(**kw)

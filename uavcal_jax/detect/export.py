@@ -5,11 +5,13 @@ function (network, decoding and NMS), serialises it with ``jax.export`` into ``<
 (StableHLO, versioned by JAX's compatibility guarantees) and writes ``<path>.json`` beside it
 (input size, class names, thresholds). :func:`load_exported` needs only JAX, NumPy and OpenCV:
 it deserialises the function and returns an :class:`ExportedDetector` that runs it on
-letterboxed batches, or on whole images (letterbox in, boxes back in image pixels out).
+letterboxed batches, or on whole images through :func:`~uavcal_jax.detect.predict.detect_images`
+(letterbox in, boxes back in image pixels out).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,31 +20,32 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from uavcal_jax.detect.augment import letterbox, unletterbox_boxes
+from uavcal_jax.detect.augment import PAD_VALUE
+from uavcal_jax.detect.config import SERVE_PREDICT, PredictConfig
+from uavcal_jax.detect.nms import Detections
+from uavcal_jax.detect.predict import detect_images, make_predict_fn
 from uavcal_jax.errors import DataError
 
-OUTPUT_NAMES = ("boxes", "scores", "classes", "valid")
+OUTPUT_NAMES = Detections._fields
 
 
 def export_predict(variables, det_cfg, path: str | Path, *, class_names=None,
-                   conf_thresh: float = 0.25, iou_thresh: float = 0.45, max_det: int = 300,
-                   batch_size: int | None = None, platforms=None) -> Path:
+                   predict_cfg: PredictConfig = SERVE_PREDICT, batch_size: int | None = None,
+                   platforms=None) -> Path:
     """Export ``images (B, H, W, 3) float32 [0, 1] -> (boxes, scores, classes, valid)``.
 
     Args:
         variables: ``{"params", "batch_stats"}``, baked into the function as constants.
         det_cfg: the :class:`~uavcal_jax.detect.config.DetectorConfig`.
         path: the output file (``<path>.json`` gets the metadata).
+        predict_cfg: the post-processing baked in (default: for use, ``SERVE_PREDICT``).
         batch_size: a fixed batch size, or ``None`` for a symbolic one (any batch).
         platforms: lowering platforms (default: the current backend), e.g.
             ``("cpu", "cuda")``.
     """
-    from uavcal_jax.detect.predict import make_predict_fn
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    predict_fn = make_predict_fn(det_cfg, conf_thresh=conf_thresh, iou_thresh=iou_thresh,
-                                 max_det=max_det)
+    predict_fn = make_predict_fn(det_cfg, predict_cfg)
     variables = jax.tree.map(jnp.asarray, {"params": variables["params"],
                                            "batch_stats": variables["batch_stats"]})
 
@@ -66,11 +69,12 @@ def export_predict(variables, det_cfg, path: str | Path, *, class_names=None,
     path.write_bytes(exported.serialize())
     meta = {
         "format": "jax.export", "jax_version": jax.__version__,
-        "inputs": "images (B, H, W, 3) float32 RGB in [0, 1], letterboxed (pad 114/255)",
+        "inputs": f"images (B, H, W, 3) float32 RGB in [0, 1], letterboxed (pad "
+                  f"{PAD_VALUE}/255)",
         "outputs": list(OUTPUT_NAMES), "img_size": list(det_cfg.img_size),
         "batch_size": batch_size, "model": det_cfg.model, "num_classes": det_cfg.num_classes,
         "class_names": list(class_names) if class_names is not None else None,
-        "conf_thresh": conf_thresh, "iou_thresh": iou_thresh, "max_det": max_det,
+        **dataclasses.asdict(predict_cfg),
         "platforms": list(exported.platforms),
     }
     Path(str(path) + ".json").write_text(json.dumps(meta, indent=1))
@@ -106,13 +110,9 @@ class ExportedDetector:
         return {k: v[: images.shape[0]] for k, v in out.items()}
 
     def detect(self, image_rgb: np.ndarray) -> dict:
-        """Detections of one uint8 RGB image, in its own pixels (letterbox handled here)."""
-        boxed, ratio, pad = letterbox(image_rgb, self.img_size)
-        out = self(boxed[None].astype(np.float32) / 255.0)
-        keep = out["valid"][0].astype(bool)
-        h, w = image_rgb.shape[:2]
-        return {"boxes": unletterbox_boxes(out["boxes"][0][keep], ratio, pad, (w, h)),
-                "scores": out["scores"][0][keep], "classes": out["classes"][0][keep]}
+        """Detections of one uint8 RGB image, in its own pixels (letterbox handled here):
+        ``{"boxes" (m, 4), "scores" (m,), "classes" (m,)}``."""
+        return detect_images(self, [image_rgb], self.img_size)[0]._asdict()
 
 
 def load_exported(path: str | Path) -> ExportedDetector:

@@ -2,7 +2,8 @@
 
 A :class:`DetectionLoader` turns records into fixed-shape :class:`Batch` es:
 
-- ``images`` (B, H, W, 3) float32 RGB in [0, 1], letterboxed (pad value 114/255);
+- ``images`` (B, H, W, 3) float32 RGB in [0, 1], letterboxed (pad value
+  ``augment.PAD_VALUE / 255``);
 - ``targets`` (B, T_max, 6) float32 rows ``[valid, class, cx, cy, w, h]`` in pixels of the
   letterboxed image (the format of :func:`uavcal_jax.detect.loss.yolo_loss`); padded rows 0;
 - ``indices`` (B,) int32 record indices (-1 for the padding of a short last batch);
@@ -29,6 +30,7 @@ import cv2
 import numpy as np
 
 from uavcal_jax.detect.augment import (
+    PAD_VALUE,
     AugmentConfig,
     augment_hsv,
     hflip,
@@ -38,7 +40,8 @@ from uavcal_jax.detect.augment import (
     resize_long_side,
     scale_boxes,
 )
-from uavcal_jax.detect.datasets import IMREAD_FLAGS, DetectionDataset, DetectionRecord
+from uavcal_jax.detect.config import DetectorConfig, TrainConfig
+from uavcal_jax.detect.records import IMREAD_FLAGS, DetectionDataset, DetectionRecord
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 
@@ -73,7 +76,7 @@ class DetectionLoader:
 
     Args:
         dataset: a :class:`DetectionDataset` or a sequence of records.
-        img_size: ``(H, W)`` of the network input (the paper's 480x640 by default).
+        img_size: ``(H, W)`` of the network input (``DetectorConfig``'s by default).
         batch_size: images per batch.
         augment: an :class:`AugmentConfig` for training, ``None`` for evaluation (letterbox
             only).
@@ -88,10 +91,12 @@ class DetectionLoader:
     """
 
     def __init__(self, dataset: DetectionDataset | Sequence[DetectionRecord],
-                 img_size: tuple[int, int] = (480, 640), batch_size: int = 8, *,
+                 img_size: tuple[int, int] = DetectorConfig.img_size,
+                 batch_size: int = TrainConfig.batch_size, *,
                  augment: AugmentConfig | None = None, shuffle: bool = False, seed: int = 0,
                  max_targets: int | None = None, drop_last: bool = False, cache: bool = True,
-                 workers: int = 2, prefetch: int = 2, include_difficult: bool = False):
+                 workers: int = TrainConfig.workers, prefetch: int = 2,
+                 include_difficult: bool = False):
         self.records = tuple(dataset.records if isinstance(dataset, DetectionDataset)
                              else dataset)
         if not self.records:
@@ -186,7 +191,7 @@ class DetectionLoader:
             self._pool = ThreadPoolExecutor(max_workers=self.workers)
         samples = list(self._pool.map(lambda a: self.sample(int(a[1]), epoch, start + a[0]),
                                       enumerate(chunk)))
-        images = np.full((B, H, W, 3), 114 / 255, np.float32)
+        images = np.full((B, H, W, 3), PAD_VALUE / 255, np.float32)
         targets = np.zeros((B, T, 6), np.float32)
         indices = np.full(B, -1, np.int32)
         ratios = np.ones(B, np.float32)

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 #: pycocotools' thresholds, built the same way so that float comparisons agree bit for bit.
+#: pycocotools' default ``maxDets``: detections counted per image (and class).
+COCO_MAX_DETS = 100
 COCO_IOU_THRESHOLDS = np.linspace(.5, 0.95, int(np.round((0.95 - .5) / .05)) + 1, endpoint=True)
 COCO_RECALL_THRESHOLDS = np.linspace(.0, 1.00, int(np.round((1.00 - .0) / .01)) + 1,
                                      endpoint=True)
@@ -130,7 +132,7 @@ def evaluate_detections(
     num_classes: int | None = None,
     gt_ignore: Sequence[np.ndarray] | None = None,
     iou_thresholds: np.ndarray | None = None,
-    max_dets: int = 100,
+    max_dets: int = COCO_MAX_DETS,
     interpolation: str = "coco101",
 ) -> MapResult:
     """mAP over a set of images (lists indexed by image; boxes xyxy in any common unit).
@@ -243,3 +245,19 @@ def fitness(result: MapResult | dict, metric: str = "map50_95") -> float:
     if metric not in ("map50", "map50_95"):
         raise ValueError(f"unknown selection metric {metric!r}")
     return float(get(metric))
+
+
+def evaluate_predictions(records, detections, num_classes: int,
+                         max_dets: int = COCO_MAX_DETS,
+                         interpolation: str = "coco101") -> MapResult:
+    """mAP of per-record detections against the records' ground truth (difficult = ignore).
+
+    ``records``: :class:`~uavcal_jax.detect.datasets.DetectionRecord` s; ``detections``: per
+    record ``(boxes (m, 4), scores (m,), classes (m,))`` in the same pixels, e.g.
+    :func:`~uavcal_jax.detect.predict.predict_dataset`'s.
+    """
+    return evaluate_detections(
+        [r.boxes for r in records], [r.classes for r in records],
+        [d[0] for d in detections], [d[1] for d in detections], [d[2] for d in detections],
+        num_classes=num_classes, gt_ignore=[r.difficult for r in records], max_dets=max_dets,
+        interpolation=interpolation)

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from uavcal_jax.detect.config import DetectorConfig
+from uavcal_jax.detect.config import SERVE_PREDICT, DetectorConfig, PredictConfig
 
 MAX_WH = 7680.0  # YOLOv5's class offset (maximum box width/height in pixels)
 
@@ -111,8 +111,8 @@ def nms(
     scores,
     classes,
     *,
-    max_det: int = 300,
-    iou_thresh: float = 0.45,
+    max_det: int = SERVE_PREDICT.max_det,
+    iou_thresh: float = SERVE_PREDICT.iou_thresh,
     valid=None,
     max_wh: float = MAX_WH,
     pre_nms_topk: int | None = None,
@@ -159,19 +159,14 @@ def _grid_constants(config: DetectorConfig, shapes):
 def postprocess(
     outputs,
     config: DetectorConfig,
-    conf_thresh: float = 0.25,
-    iou_thresh: float = 0.45,
-    max_det: int = 300,
-    *,
-    multi_label: bool = False,
-    agnostic: bool = False,
-    pre_nms_topk: int = 1000,
+    predict_cfg: PredictConfig = SERVE_PREDICT,
 ) -> Detections:
     """Raw head outputs -> :class:`Detections` ``(B, max_det, ...)`` in input pixels.
 
     Scores are computed for every prediction, but boxes are decoded (as :func:`decode`) only
-    for the ``pre_nms_topk`` best candidates, which then go through :func:`nms`.
+    for the ``predict_cfg.pre_nms_topk`` best candidates, which then go through :func:`nms`.
     """
+    conf_thresh, pre_nms_topk = predict_cfg.conf_thresh, predict_cfg.pre_nms_topk
     b = outputs[0].shape[0]
     no = outputs[0].shape[-1]
     c = no - 5
@@ -181,7 +176,7 @@ def postprocess(
     obj = jax.nn.sigmoid(raw[..., 4])
     conf = obj[..., None] * jax.nn.sigmoid(raw[..., 5:])  # (B,N,C)
     neg = -1.0
-    if multi_label and c > 1:
+    if predict_cfg.multi_label and c > 1:
         flat = conf.reshape(b, n * c)
         ok = (jnp.repeat(obj, c, axis=1) > conf_thresh) & (flat > conf_thresh)
         k = min(pre_nms_topk, n * c)
@@ -209,9 +204,9 @@ def postprocess(
         boxes,
         scores,
         classes,
-        max_det=max_det,
-        iou_thresh=iou_thresh,
+        max_det=predict_cfg.max_det,
+        iou_thresh=predict_cfg.iou_thresh,
         valid=valid,
-        agnostic=agnostic,
+        agnostic=predict_cfg.agnostic,
         presorted=True,
     )

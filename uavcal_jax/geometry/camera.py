@@ -17,6 +17,7 @@ Conventions (the same as OpenCV and EuRoC's ``sensor.yaml``):
 All functions are pure and jit/vmap/grad-able; they compute in the dtype of their inputs
 (float64 when x64 is enabled and the inputs are float64). :class:`PinholeRadtan` is a pytree
 whose leaves are the eight scalar parameters; ``width`` and ``height`` are static metadata.
+EuRoC's VI-sensor lenses are data, not part of the model: :mod:`uavcal_jax.data.euroc_rig`.
 """
 
 from __future__ import annotations
@@ -29,19 +30,9 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
-    "EUROC_CAM0_DISTORTION",
-    "EUROC_CAM0_INTRINSICS",
-    "EUROC_CAM0_T_BS",
-    "EUROC_CAM1_DISTORTION",
-    "EUROC_CAM1_INTRINSICS",
-    "EUROC_CAM1_T_BS",
-    "EUROC_RATE_HZ",
-    "EUROC_RESOLUTION",
+    "PARAMETER_NAMES",
     "PinholeRadtan",
     "distort",
-    "euroc_calibration",
-    "euroc_camera",
-    "euroc_T_C0C1",
     "from_calibration",
     "pixel_grid",
     "pixel_rays",
@@ -52,32 +43,9 @@ __all__ = [
     "unproject",
 ]
 
-# --- EuRoC MAV VI-sensor defaults (mav0/cam{0,1}/sensor.yaml of every EuRoC sequence) ---------
-
-EUROC_RESOLUTION: tuple[int, int] = (752, 480)  # (width, height)
-EUROC_RATE_HZ: float = 20.0
-EUROC_CAM0_INTRINSICS = np.array([458.654, 457.296, 367.215, 248.375])  # fu, fv, cu, cv
-EUROC_CAM0_DISTORTION = np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
-EUROC_CAM0_T_BS = np.array(
-    [
-        [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
-        [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],
-        [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949],
-        [0.0, 0.0, 0.0, 1.0],
-    ]
-)
-EUROC_CAM1_INTRINSICS = np.array([457.587, 456.134, 379.999, 255.238])
-EUROC_CAM1_DISTORTION = np.array([-0.28368365, 0.07451284, -0.00010473, -3.55590700e-05])
-EUROC_CAM1_T_BS = np.array(
-    [
-        [0.0125552670891, -0.999755099723, 0.0182237714554, -0.0198435579556],
-        [0.999598781151, 0.0130119051815, 0.0251588363115, 0.0453689425024],
-        [-0.0253898008918, 0.0179005838253, 0.999517347078, 0.00786212447038],
-        [0.0, 0.0, 0.0, 1.0],
-    ]
-)
-
-_FIELDS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
+#: The eight scalar parameters of :class:`PinholeRadtan` (its pytree leaves), in the order
+#: ``fx, fy, cx, cy`` (intrinsics) then ``k1, k2, p1, p2`` (distortion).
+PARAMETER_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,8 +73,8 @@ class PinholeRadtan:
     def create(
         cls,
         intrinsics,
-        distortion=(0.0, 0.0, 0.0, 0.0),
-        resolution: tuple[int, int] = EUROC_RESOLUTION,
+        distortion,
+        resolution: tuple[int, int],
         dtype=None,
     ) -> PinholeRadtan:
         """From ``(fx, fy, cx, cy)``, ``(k1, k2, p1, p2)`` and ``(width, height)``.
@@ -118,9 +86,8 @@ class PinholeRadtan:
         if len(values) != 8:
             raise ValueError("need 4 intrinsics (fx, fy, cx, cy) and 4 distortion (k1, k2, p1, p2)")
         dtype = dtype or jnp.result_type(float)
-        params = {
-            name: jnp.asarray(v, dtype=dtype) for name, v in zip(_FIELDS, values, strict=True)
-        }
+        params = {n: jnp.asarray(v, dtype=dtype)
+                  for n, v in zip(PARAMETER_NAMES, values, strict=True)}
         return cls(**params, width=int(resolution[0]), height=int(resolution[1]))
 
     @property
@@ -170,20 +137,21 @@ class PinholeRadtan:
     def astype(self, dtype) -> PinholeRadtan:
         """All parameters cast to ``dtype``."""
         return dataclasses.replace(
-            self, **{n: jnp.asarray(getattr(self, n), dtype=dtype) for n in _FIELDS}
+            self, **{n: jnp.asarray(getattr(self, n), dtype=dtype) for n in PARAMETER_NAMES}
         )
 
 
 jax.tree_util.register_dataclass(
-    PinholeRadtan, data_fields=list(_FIELDS), meta_fields=["width", "height"]
+    PinholeRadtan, data_fields=list(PARAMETER_NAMES), meta_fields=["width", "height"]
 )
 
 
 def from_calibration(calibration, dtype=None) -> PinholeRadtan:
-    """A :class:`PinholeRadtan` from a :class:`uavcal_jax.data.CameraCalibration`.
+    """A :class:`PinholeRadtan` from a camera calibration record.
 
-    Any object with ``intrinsics`` (fu, fv, cu, cv), ``distortion`` (k1, k2, p1, p2) and
-    ``resolution`` (width, height) works.
+    Any object with ``intrinsics`` (fu, fv, cu, cv), ``distortion`` (k1, k2, p1, p2),
+    ``resolution`` (width, height) and optionally ``distortion_model`` works, e.g. a
+    :class:`uavcal_jax.data.CameraCalibration` (geometry does not import it: data sits above).
     """
     model = getattr(calibration, "distortion_model", "radial-tangential")
     if model not in ("radial-tangential", "radtan", "plumb_bob"):
@@ -191,38 +159,6 @@ def from_calibration(calibration, dtype=None) -> PinholeRadtan:
     return PinholeRadtan.create(
         calibration.intrinsics, calibration.distortion, tuple(calibration.resolution), dtype
     )
-
-
-def euroc_camera(index: int = 0, dtype=None) -> PinholeRadtan:
-    """EuRoC's cam0 (``index=0``) or cam1 (``index=1``) lens, 752x480."""
-    intr, dist = {
-        0: (EUROC_CAM0_INTRINSICS, EUROC_CAM0_DISTORTION),
-        1: (EUROC_CAM1_INTRINSICS, EUROC_CAM1_DISTORTION),
-    }[index]
-    return PinholeRadtan.create(intr, dist, EUROC_RESOLUTION, dtype)
-
-
-def euroc_calibration(index: int = 0):
-    """EuRoC's cam0/cam1 as a :class:`uavcal_jax.data.CameraCalibration` (numpy, float64)."""
-    from uavcal_jax.data.sequence import CameraCalibration  # data types only; no cycle
-
-    intr, dist, T_BS = {
-        0: (EUROC_CAM0_INTRINSICS, EUROC_CAM0_DISTORTION, EUROC_CAM0_T_BS),
-        1: (EUROC_CAM1_INTRINSICS, EUROC_CAM1_DISTORTION, EUROC_CAM1_T_BS),
-    }[index]
-    return CameraCalibration(
-        intrinsics=intr.copy(),
-        distortion=dist.copy(),
-        resolution=EUROC_RESOLUTION,
-        rate_hz=EUROC_RATE_HZ,
-        T_BS=T_BS.copy(),
-    )
-
-
-def euroc_T_C0C1() -> np.ndarray:
-    """(4, 4) float64 pose of cam1 in cam0's frame: ``inv(T_BS0) @ T_BS1`` (maps cam1 points
-    to cam0)."""
-    return np.linalg.inv(EUROC_CAM0_T_BS) @ EUROC_CAM1_T_BS
 
 
 # --- the model ---------------------------------------------------------------------------------

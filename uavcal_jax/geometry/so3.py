@@ -15,7 +15,9 @@ Conventions (those of Forster et al., GTSAM and Sophus):
   so that ``log(exp(phi) exp(d)) ~= phi + Jr^-1(phi) d``. It is singular at ``t = 2 pi``.
 
 ``exp`` and ``log`` go through :class:`jaxlie.SO3` (unit quaternions); the Jacobians are
-closed forms written here.
+closed forms written here, from the coefficient functions of :func:`series_coefficients`. Their
+Taylor branch (:func:`taylor_threshold`, :func:`taylor_series`, :func:`horner`) is public for
+the preintegration kernel, which computes the same coefficients without sin and cos.
 """
 
 from __future__ import annotations
@@ -31,11 +33,12 @@ __all__ = [
     "right_jacobian",
     "right_jacobian_inv",
     "left_jacobian",
-    "left_jacobian_inv",
     "from_quaternion",
     "to_quaternion",
-    "project_to_so3",
     "series_coefficients",
+    "taylor_threshold",
+    "taylor_series",
+    "horner",
 ]
 
 
@@ -91,20 +94,13 @@ def to_quaternion(rotation: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(q[..., :1] < 0, -q, q)
 
 
-def project_to_so3(m: jnp.ndarray) -> jnp.ndarray:
-    """Nearest rotation (Frobenius norm) to a ``(..., 3, 3)`` matrix, via SVD."""
-    u, _, vt = jnp.linalg.svd(jnp.asarray(m))
-    d = jnp.sign(jnp.linalg.det(u @ vt))
-    vt = vt.at[..., 2, :].multiply(d[..., None])
-    return u @ vt
-
-
 # --------------------------------------------------------------------------------------
 # Scalar coefficient functions of s = |phi|^2, with Taylor series near zero.
 # --------------------------------------------------------------------------------------
 
 # Taylor coefficients in s = theta^2 (five terms; the first omitted term is below 1e-19
 # relative in float64 at the switch-over point and far below float32 precision in float32).
+# Read them through taylor_series.
 _TAYLOR = {
     # sin(t)/t
     "a": (1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0),
@@ -121,16 +117,27 @@ _TAYLOR = {
 }
 
 
-def _switch(dtype) -> float:
-    """Below this s = theta^2 the Taylor series is used (cancellation-free and exact enough)."""
+def taylor_threshold(dtype) -> float:
+    """The ``s = theta^2`` below which the coefficients use their Taylor series rather than the
+    closed forms (which cancel catastrophically near 0): ``1e-2`` in float64, ``0.25`` in
+    float32, where five terms are exact to the dtype's rounding."""
     return 1e-2 if jnp.dtype(dtype) == jnp.float64 else 0.25
 
 
-def _poly(coeffs, s):
+def horner(coeffs, x):
+    """``sum_k coeffs[k] x^k`` by Horner's rule (``coeffs`` lowest order first; ``x`` any
+    array, the result has its shape)."""
     out = coeffs[-1]
     for c in coeffs[-2::-1]:
-        out = out * s + c
+        out = out * x + c
     return out
+
+
+def taylor_series(name: str, s: jnp.ndarray) -> jnp.ndarray:
+    """The Taylor series in ``s = |phi|^2`` of the coefficient ``name`` (one of ``"a"``,
+    ``"b"``, ``"c"``, ``"d"``, ``"db"``, ``"dc"``; see :func:`series_coefficients`), accurate
+    for ``s <`` :func:`taylor_threshold`. Same shape as ``s``."""
+    return horner(_TAYLOR[name], s)
 
 
 def series_coefficients(s: jnp.ndarray, names=("a", "b", "c", "d")) -> tuple[jnp.ndarray, ...]:
@@ -141,7 +148,7 @@ def series_coefficients(s: jnp.ndarray, names=("a", "b", "c", "d")) -> tuple[jnp
     Every value is differentiable in ``s`` (gradients finite at zero).
     """
     s = jnp.asarray(s)
-    small = s < _switch(s.dtype)
+    small = s < taylor_threshold(s.dtype)
     s_safe = jnp.where(small, jnp.ones_like(s), s)
     t = jnp.sqrt(s_safe)
     sin_t, cos_t = jnp.sin(t), jnp.cos(t)
@@ -157,7 +164,7 @@ def series_coefficients(s: jnp.ndarray, names=("a", "b", "c", "d")) -> tuple[jnp
         # dc/ds = ((a - cos t)/2 - c s) / s^2
         "dc": (0.5 * (a - cos_t) - c * s_safe) / (s_safe * s_safe),
     }
-    return tuple(jnp.where(small, _poly(_TAYLOR[n], s), exact[n]) for n in names)
+    return tuple(jnp.where(small, taylor_series(n, s), exact[n]) for n in names)
 
 
 def _i_plus(phi: jnp.ndarray, alpha, beta) -> jnp.ndarray:
@@ -185,8 +192,3 @@ def right_jacobian_inv(phi: jnp.ndarray) -> jnp.ndarray:
 def left_jacobian(phi: jnp.ndarray) -> jnp.ndarray:
     """Left Jacobian ``Jl(phi) = Jr(-phi)``: ``exp(phi + d) ~= exp(Jl(phi) d) exp(phi)``."""
     return right_jacobian(-jnp.asarray(phi))
-
-
-def left_jacobian_inv(phi: jnp.ndarray) -> jnp.ndarray:
-    """Inverse left Jacobian ``Jl(phi)^-1 = Jr(-phi)^-1``."""
-    return right_jacobian_inv(-jnp.asarray(phi))

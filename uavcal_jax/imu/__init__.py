@@ -9,6 +9,7 @@ Public API::
     imu_residual / imu_residual_whitened / residual_covariance / imu_cost
     interval_samples / interval_batch / interval_samples_padded  (cut [t_i, t_j] from a stream)
     add_offset / remove_offset
+    ImuNoise, EUROC_ADIS16448  (the noise model, also what the readers and the simulator use)
 
 See :mod:`uavcal_jax.imu.preintegration` for the schemes, orders and the bad-input policy.
 """
@@ -20,7 +21,7 @@ from uavcal_jax.imu.interval import (
     interval_samples,
     interval_samples_padded,
 )
-from uavcal_jax.imu.noise import EUROC_ADIS16448, PreintegrationNoise
+from uavcal_jax.imu.noise import EUROC_ADIS16448, ImuNoise
 from uavcal_jax.imu.offset import add_offset, remove_offset, split_offset
 from uavcal_jax.imu.preintegration import (
     SCHEMES,
@@ -30,7 +31,6 @@ from uavcal_jax.imu.preintegration import (
     preintegrate,
 )
 from uavcal_jax.imu.residual import (
-    GRAVITY,
     ImuBias,
     NavState,
     imu_cost,
@@ -42,14 +42,13 @@ from uavcal_jax.imu.residual import (
 
 __all__ = [
     "EUROC_ADIS16448",
-    "GRAVITY",
     "SCHEMES",
     "THETA_LIMIT",
     "ImuBias",
     "ImuInterval",
+    "ImuNoise",
     "NavState",
     "Preintegrated",
-    "PreintegrationNoise",
     "add_offset",
     "bias_correct",
     "imu_cost",

@@ -53,10 +53,6 @@ class ImuInterval:
     mask: np.ndarray | jax.Array
     complete: np.ndarray | jax.Array
 
-    def as_args(self) -> tuple:
-        """``(dt, gyro, accel)``; pass ``mask=self.mask`` as well for padded batches."""
-        return self.dt, self.gyro, self.accel
-
 
 jax.tree_util.register_dataclass(
     ImuInterval, data_fields=["dt", "gyro", "accel", "mask", "complete"], meta_fields=[]
@@ -85,10 +81,6 @@ def _validate_stream(t, gyro, accel):
         raise DataError(
             f"IMU timestamps must increase strictly (sample {k + 1}: {t[k + 1]} after {t[k]})"
         )
-
-
-def _seconds(x, integer: bool) -> np.ndarray:
-    return np.asarray(x, np.float64) * (1e-9 if integer else 1.0)
 
 
 def interval_samples(t, gyro=None, accel=None, t_start=None, t_end=None) -> ImuInterval:

@@ -1,4 +1,11 @@
-"""Continuous-time IMU noise model used to propagate the preintegration covariance."""
+"""The IMU noise model: one dataclass that the readers produce, the simulator draws from and
+the preintegration propagates.
+
+Units are those of Kalibr's and EuRoC's ``imu0/sensor.yaml`` (the key names there are
+``gyroscope_noise_density`` ... ; :mod:`uavcal_jax.data.yaml_io` maps them to these fields).
+The discrete covariance of one sample held for ``dt`` is ``density^2 / dt`` (the convention
+of GTSAM, Forster et al. and Kalibr).
+"""
 
 from __future__ import annotations
 
@@ -8,12 +15,13 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-__all__ = ["PreintegrationNoise", "EUROC_ADIS16448"]
+__all__ = ["ImuNoise", "EUROC_ADIS16448"]
 
 
 @dataclasses.dataclass(frozen=True)
-class PreintegrationNoise:
-    """White-noise and random-walk densities of the IMU (Kalibr / EuRoC ``sensor.yaml`` units).
+class ImuNoise:
+    """White-noise and random-walk densities of an IMU; the defaults are the EuRoC MAV's
+    ADIS16448 (its ``imu0/sensor.yaml``).
 
     Each value is a scalar (same on all three axes) or a (3,) per-axis array; the axes are
     independent. A registered pytree (every field is a leaf), so it can be passed straight
@@ -25,10 +33,8 @@ class PreintegrationNoise:
         gyro_random_walk: rad/s^2/sqrt(Hz) (bias diffusion); 0 = constant bias.
         accel_random_walk: m/s^3/sqrt(Hz); 0 = constant bias.
         integration_covariance: GTSAM's ``integrationCovariance`` (its diagonal): position
-            variance added per second of integration, m^2/s. 0 by default (as in the checks).
-
-    The discrete covariance of one sample held for ``dt`` is ``density^2 / dt`` (the
-    convention of GTSAM, Forster et al. and Kalibr).
+            variance added per second of integration, m^2/s. Not part of a ``sensor.yaml``;
+            0 by default (as in the checks against GTSAM).
     """
 
     gyro_noise_density: Any = 1.6968e-4
@@ -36,33 +42,6 @@ class PreintegrationNoise:
     gyro_random_walk: Any = 1.9393e-5
     accel_random_walk: Any = 3.0e-3
     integration_covariance: Any = 0.0
-
-    @classmethod
-    def euroc(cls) -> PreintegrationNoise:
-        """The EuRoC MAV's ADIS16448 (its ``imu0/sensor.yaml``); also the defaults."""
-        return cls()
-
-    @classmethod
-    def from_calibration(cls, calibration: Any, integration_covariance: float = 0.0
-                         ) -> PreintegrationNoise:
-        """From an :class:`~uavcal_jax.data.sequence.ImuCalibration` (``gyroscope_noise_density``
-        ...) or any object with ``gyro_noise_density``-style attributes (e.g. the simulator's
-        ``ImuNoise``)."""
-        names = {
-            "gyro_noise_density": ("gyroscope_noise_density", "gyro_noise_density"),
-            "accel_noise_density": ("accelerometer_noise_density", "accel_noise_density"),
-            "gyro_random_walk": ("gyroscope_random_walk", "gyro_random_walk"),
-            "accel_random_walk": ("accelerometer_random_walk", "accel_random_walk"),
-        }
-        values = {}
-        for field, candidates in names.items():
-            for attr in candidates:
-                if hasattr(calibration, attr):
-                    values[field] = float(getattr(calibration, attr))
-                    break
-            else:
-                raise TypeError(f"{type(calibration).__name__} has no {' or '.join(candidates)}")
-        return cls(**values, integration_covariance=integration_covariance)
 
     def variances(self, dtype) -> dict[str, tuple[Any, Any, Any]]:
         """Per-axis variance densities as 3-tuples of scalars of ``dtype`` (for the kernel)."""
@@ -86,10 +65,10 @@ class PreintegrationNoise:
 
 
 jax.tree_util.register_dataclass(
-    PreintegrationNoise,
-    data_fields=[f.name for f in dataclasses.fields(PreintegrationNoise)],
+    ImuNoise,
+    data_fields=[f.name for f in dataclasses.fields(ImuNoise)],
     meta_fields=[],
 )
 
-#: The EuRoC ADIS16448 noise model.
-EUROC_ADIS16448 = PreintegrationNoise()
+#: The EuRoC MAV's ADIS16448 noise model (the defaults, named).
+EUROC_ADIS16448 = ImuNoise()

@@ -39,7 +39,8 @@ densities and ``bias_covariance=True``) propagates ``Sigma <- F Sigma F^T + nois
 sample exactly as GTSAM does (to rounding). With ``bias_covariance=True`` the state is
 extended by the two biases, which random-walk with the given densities (GTSAM's
 ``PreintegratedCombinedMeasurements``), and ``cov`` is 15x15. See
-:mod:`uavcal_jax.imu._kernel` for the recursions and the closed form.
+:mod:`uavcal_jax.imu._ops` for the step's recursions, :mod:`uavcal_jax.imu._closed` for the
+closed form and :mod:`uavcal_jax.imu._recursive` for GTSAM's propagation.
 
 Orders: every output follows the **rotation, velocity, position** order (then gyro bias,
 accel bias). GTSAM's ``preintMeasCov()`` is in rotation, position, velocity order (and
@@ -63,8 +64,8 @@ import numpy as np
 
 from uavcal_jax.errors import DataError
 from uavcal_jax.geometry import so3
-from uavcal_jax.imu import _kernel
-from uavcal_jax.imu.noise import PreintegrationNoise
+from uavcal_jax.imu import _closed, _recursive
+from uavcal_jax.imu.noise import EUROC_ADIS16448, ImuNoise
 
 __all__ = [
     "Preintegrated",
@@ -80,6 +81,7 @@ SCHEMES = ("tangent", "manifold")
 #: Largest ``|theta|`` (rad) accepted by the tangent scheme before the result is flagged
 #: invalid (``Jr(theta)^-1`` is singular at ``2 pi``).
 THETA_LIMIT = 1.8 * np.pi
+
 
 @dataclasses.dataclass(frozen=True)
 class Preintegrated:
@@ -236,7 +238,7 @@ def preintegrate(
     bias_accel=None,
     *,
     mask=None,
-    noise: PreintegrationNoise | None = None,
+    noise: ImuNoise = EUROC_ADIS16448,
     offset=None,
     scheme: str = "tangent",
     bias_covariance: bool = False,
@@ -253,7 +255,7 @@ def preintegrate(
             linearisation point of the bias Jacobians); zeros by default.
         mask: (..., N) bool, ``False`` for padding samples (skipped exactly); all ``True``
             by default. Pad ``dt``, ``gyro``, ``accel`` with any finite values.
-        noise: :class:`~uavcal_jax.imu.noise.PreintegrationNoise` (default: EuRoC ADIS16448).
+        noise: :class:`~uavcal_jax.imu.noise.ImuNoise` (default: EuRoC's ADIS16448).
         offset: optional (..., 6) or (6,) additive IMU offset (gyro xyz, accel xyz) to remove
             from the samples before integrating (``sample - offset``); differentiable.
         scheme: ``"tangent"`` (GTSAM's, default) or ``"manifold"`` (Forster Euler).
@@ -274,7 +276,6 @@ def preintegrate(
     """
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
-    noise = PreintegrationNoise() if noise is None else noise
     isotropic = all(np.ndim(x) == 0 for x in (noise.gyro_noise_density, noise.accel_noise_density))
     if covariance == "auto":
         covariance = "closed" if (isotropic and not bias_covariance) else "recursive"
@@ -324,7 +325,10 @@ def _preintegrate(dt, gyro, accel, bg, ba, mask, off, noise, *, scheme, covarian
 
     var = noise.variances(dtype)
     n_cov = 15 if bias_covariance else 9
-    k = _kernel.run(comps, var, scheme, covariance, n_cov, unroll)
+    if covariance == "closed":
+        k = _closed.run(comps, var, scheme, unroll)
+    else:
+        k = _recursive.run(comps, var, scheme, n_cov, unroll)
 
     p, v = k["p"], k["v"]
     if scheme == "tangent":
@@ -357,24 +361,10 @@ def _preintegrate(dt, gyro, accel, bg, ba, mask, off, noise, *, scheme, covarian
         valid = valid & (jnp.sum(theta * theta, axis=-1) < THETA_LIMIT**2)
 
     return Preintegrated(
-        delta_R=delta_R,
-        delta_v=v,
-        delta_p=p,
-        delta_t=delta_t,
-        theta=theta,
-        d_R_d_bg=d_R_d_bg,
-        d_theta_d_bg=d_theta_d_bg,
-        d_v_d_bg=k["Hv"],
-        d_v_d_ba=k["Hva"],
-        d_p_d_bg=k["Hp"],
-        d_p_d_ba=k["Hpa"],
-        cov=cov,
-        cov_bias=cov_bias,
-        bias_gyro=bg,
-        bias_accel=ba,
-        valid=valid,
-        n_samples=n_used,
-        scheme=scheme,
+        delta_R=delta_R, delta_v=v, delta_p=p, delta_t=delta_t, theta=theta,
+        d_R_d_bg=d_R_d_bg, d_theta_d_bg=d_theta_d_bg, d_v_d_bg=k["Hv"], d_v_d_ba=k["Hva"],
+        d_p_d_bg=k["Hp"], d_p_d_ba=k["Hpa"], cov=cov, cov_bias=cov_bias, bias_gyro=bg,
+        bias_accel=ba, valid=valid, n_samples=n_used, scheme=scheme,
     )
 
 

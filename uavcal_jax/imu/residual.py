@@ -1,6 +1,7 @@
 """Navigation state, state prediction and the 15-dimensional IMU residual (the VIO's IMU factor).
 
-The world frame is z up with gravity ``(0, 0, -9.81)`` (GTSAM's ``MakeSharedU(9.81)``); the
+The world frame is z up with gravity :data:`~uavcal_jax.geometry.frames.GRAVITY_W`,
+``(0, 0, -9.81)`` (GTSAM's ``MakeSharedU(9.81)``); the
 body frame is the IMU frame; ``rotation`` maps body to world.
 
 Prediction (Forster et al. eq. 33; GTSAM's ``PreintegrationBase::predict`` without Coriolis)::
@@ -34,10 +35,10 @@ import jax
 import jax.numpy as jnp
 
 from uavcal_jax.geometry import so3
+from uavcal_jax.geometry.frames import GRAVITY_W
 from uavcal_jax.imu.preintegration import Preintegrated, bias_correct
 
 __all__ = [
-    "GRAVITY",
     "NavState",
     "ImuBias",
     "predict",
@@ -46,10 +47,6 @@ __all__ = [
     "imu_residual_whitened",
     "imu_cost",
 ]
-
-#: Gravity in the z-up world frame, m/s^2.
-GRAVITY = (0.0, 0.0, -9.81)
-
 
 @dataclasses.dataclass(frozen=True)
 class NavState:
@@ -70,11 +67,6 @@ class NavState:
         """From a body-to-world quaternion (w, x, y, z), as in EuRoC's ground truth."""
         return cls(so3.from_quaternion(jnp.asarray(wxyz)), jnp.asarray(position),
                    jnp.asarray(velocity))
-
-    @property
-    def quaternion(self) -> jax.Array:
-        """(..., 4) w, x, y, z with ``w >= 0``."""
-        return so3.to_quaternion(self.rotation)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +107,7 @@ def _mtv(m, x):
     return jnp.einsum("...ji,...j->...i", m, x)
 
 
-def predict(state_i: NavState, pim: Preintegrated, bias=None, gravity=GRAVITY) -> NavState:
+def predict(state_i: NavState, pim: Preintegrated, bias=None, gravity=GRAVITY_W) -> NavState:
     """State at ``t_j`` from the state at ``t_i``, the preintegration and the bias at ``t_i``.
 
     Args:
@@ -137,7 +129,7 @@ def predict(state_i: NavState, pim: Preintegrated, bias=None, gravity=GRAVITY) -
 
 
 def imu_residual(state_i: NavState, bias_i, state_j: NavState, bias_j, pim: Preintegrated,
-                 gravity=GRAVITY) -> jax.Array:
+                 gravity=GRAVITY_W) -> jax.Array:
     """Unwhitened 15-vector (rotation, velocity, position, gyro bias, accel bias), (..., 15).
 
     ``bias_i``, ``bias_j``: :class:`ImuBias`, ``(gyro, accel)`` pairs or (..., 6) arrays.
@@ -185,7 +177,7 @@ def residual_covariance(pim: Preintegrated) -> jax.Array:
 
 
 def imu_residual_whitened(state_i: NavState, bias_i, state_j: NavState, bias_j,
-                          pim: Preintegrated, gravity=GRAVITY, jitter: float = 0.0
+                          pim: Preintegrated, gravity=GRAVITY_W, jitter: float = 0.0
                           ) -> jax.Array:
     """``L^-1 r`` (..., 15) with ``L L^T = residual_covariance(pim) + jitter I``.
 
@@ -201,7 +193,7 @@ def imu_residual_whitened(state_i: NavState, bias_i, state_j: NavState, bias_j,
 
 
 def imu_cost(state_i: NavState, bias_i, state_j: NavState, bias_j, pim: Preintegrated,
-             gravity=GRAVITY) -> jax.Array:
+             gravity=GRAVITY_W) -> jax.Array:
     """Half the squared Mahalanobis norm of the residual, (...)."""
     e = imu_residual_whitened(state_i, bias_i, state_j, bias_j, pim, gravity)
     return 0.5 * jnp.sum(e * e, axis=-1)

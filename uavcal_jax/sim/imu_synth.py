@@ -1,4 +1,5 @@
-"""Synthetic IMU from a continuous-time trajectory, with the EuRoC/Kalibr noise model.
+"""Synthetic IMU from a continuous-time trajectory, with the EuRoC/Kalibr noise model
+(:class:`~uavcal_jax.imu.noise.ImuNoise`) and turn-on biases (:class:`TurnOnBias`).
 
 Exact (noise-free) measurements at time ``t``, in the body (= IMU) frame::
 
@@ -32,13 +33,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavcal_jax.data.sequence import GroundTruth, ImuCalibration, ImuData
-from uavcal_jax.sim.trajectory import GRAVITY, Trajectory, TrajectoryState
+from uavcal_jax.data.sequence import GroundTruth, ImuData
+from uavcal_jax.geometry.frames import GRAVITY_W
+from uavcal_jax.imu.noise import ImuNoise
+from uavcal_jax.sim.trajectory import Trajectory, TrajectoryState
 
 __all__ = [
-    "GRAVITY_W",
-    "ImuNoise",
     "SyntheticImu",
+    "TurnOnBias",
     "ground_truth_from_trajectory",
     "ideal_imu",
     "imu_noise",
@@ -46,42 +48,21 @@ __all__ = [
     "synthesize_imu",
 ]
 
-#: World gravity vector, m/s^2 (z up).
-GRAVITY_W = np.array([0.0, 0.0, -GRAVITY])
-
 
 @dataclass(frozen=True)
-class ImuNoise:
-    """Continuous-time IMU noise model (defaults: EuRoC's ADIS16448 ``imu0/sensor.yaml``).
+class TurnOnBias:
+    """Spread of the constant biases an IMU wakes up with (a simulator setting: a
+    ``sensor.yaml`` does not state it, and :class:`~uavcal_jax.imu.noise.ImuNoise` holds only
+    what it does).
 
     Attributes:
-        gyro_noise_density: rad/s/sqrt(Hz).
-        gyro_random_walk: rad/s^2/sqrt(Hz).
-        accel_noise_density: m/s^2/sqrt(Hz).
-        accel_random_walk: m/s^3/sqrt(Hz).
-        turn_on_bias_gyro_sigma: rad/s, std of the constant bias drawn at switch-on (the
-            size of the gyro biases EuRoC's ground truth reports, up to ~0.08 rad/s).
-        turn_on_bias_accel_sigma: m/s^2, std of the accelerometer turn-on bias.
+        gyro_sigma: rad/s, std of the gyro turn-on bias (the size of the gyro biases EuRoC's
+            ground truth reports, up to ~0.08 rad/s).
+        accel_sigma: m/s^2, std of the accelerometer turn-on bias.
     """
 
-    gyro_noise_density: float = 1.6968e-04
-    gyro_random_walk: float = 1.9393e-05
-    accel_noise_density: float = 2.0e-3
-    accel_random_walk: float = 3.0e-3
-    turn_on_bias_gyro_sigma: float = 0.03
-    turn_on_bias_accel_sigma: float = 0.1
-
-    @classmethod
-    def from_calibration(cls, calibration: ImuCalibration, **overrides) -> ImuNoise:
-        """The densities of an :class:`ImuCalibration` (turn-on sigmas: defaults/overrides)."""
-        values = dict(
-            gyro_noise_density=float(calibration.gyroscope_noise_density),
-            gyro_random_walk=float(calibration.gyroscope_random_walk),
-            accel_noise_density=float(calibration.accelerometer_noise_density),
-            accel_random_walk=float(calibration.accelerometer_random_walk),
-        )
-        values.update(overrides)
-        return cls(**values)
+    gyro_sigma: float = 0.03
+    accel_sigma: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -113,7 +94,8 @@ def imu_timestamps(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
 
 
 def _measurements(state: TrajectoryState) -> tuple[np.ndarray, np.ndarray]:
-    accel = np.einsum("...ji,...j->...i", state.rotation, state.acceleration - GRAVITY_W)
+    accel = np.einsum("...ji,...j->...i", state.rotation,
+                      state.acceleration - np.asarray(GRAVITY_W))
     return state.angular_velocity_body, accel
 
 
@@ -123,15 +105,17 @@ def ideal_imu(traj: Trajectory, t) -> tuple[np.ndarray, np.ndarray]:
 
 
 def imu_noise(n: int, dt: float, noise: ImuNoise, seed: int = 0,
-              steps: np.ndarray | None = None) -> dict[str, np.ndarray]:
+              steps: np.ndarray | None = None, turn_on: TurnOnBias = TurnOnBias()
+              ) -> dict[str, np.ndarray]:
     """Noise alone for ``n`` samples: white noise and bias (turn-on + random walk) per sensor.
 
     Args:
         n: number of samples.
         dt: nominal sample period (seconds) for the white noise.
-        noise: the model.
+        noise: the model (scalar densities).
         seed: see the module docstring.
         steps: (n - 1,) actual periods for the bias walk (default: ``dt`` each).
+        turn_on: spread of the initial biases.
 
     Returns:
         ``{"white_gyro", "white_accel", "bias_gyro", "bias_accel"}``, each (n, 3).
@@ -150,15 +134,15 @@ def imu_noise(n: int, dt: float, noise: ImuNoise, seed: int = 0,
     return {
         "white_gyro": g_white.normal(size=(n, 3)) * noise.gyro_noise_density / math.sqrt(dt),
         "white_accel": a_white.normal(size=(n, 3)) * noise.accel_noise_density / math.sqrt(dt),
-        "bias_gyro": bias(g_on, g_walk, noise.turn_on_bias_gyro_sigma, noise.gyro_random_walk),
-        "bias_accel": bias(a_on, a_walk, noise.turn_on_bias_accel_sigma,
-                           noise.accel_random_walk),
+        "bias_gyro": bias(g_on, g_walk, turn_on.gyro_sigma, noise.gyro_random_walk),
+        "bias_accel": bias(a_on, a_walk, turn_on.accel_sigma, noise.accel_random_walk),
     }
 
 
 def synthesize_imu(traj: Trajectory, rate_hz: float = 200.0, noise: ImuNoise | None = None,
                    seed: int = 0, t_start: float | None = None, t_end: float | None = None,
-                   *, t_ns: np.ndarray | None = None) -> SyntheticImu:
+                   *, t_ns: np.ndarray | None = None, turn_on: TurnOnBias = TurnOnBias()
+                   ) -> SyntheticImu:
     """IMU samples of a trajectory at ``rate_hz`` (or at given times).
 
     Args:
@@ -168,6 +152,7 @@ def synthesize_imu(traj: Trajectory, rate_hz: float = 200.0, noise: ImuNoise | N
         seed: noise seed (numpy ``Generator``; see the module docstring).
         t_start, t_end: span in seconds (default: the trajectory's).
         t_ns: explicit int64 ns sample times instead of the regular grid (e.g. a real IMU's).
+        turn_on: spread of the initial biases (with ``noise`` only).
 
     Returns:
         :class:`SyntheticImu`.
@@ -185,7 +170,8 @@ def synthesize_imu(traj: Trajectory, rate_hz: float = 200.0, noise: ImuNoise | N
         zeros = np.zeros((n, 3))
         return SyntheticImu(ImuData(t_ns=t_ns, gyro=gyro, accel=accel), zeros, zeros.copy())
     dt = 1.0 / rate_hz
-    nz = imu_noise(n, dt, noise, seed, steps=np.diff(t_ns).astype(np.float64) * 1e-9)
+    nz = imu_noise(n, dt, noise, seed, steps=np.diff(t_ns).astype(np.float64) * 1e-9,
+                   turn_on=turn_on)
     gyro = gyro + nz["bias_gyro"] + nz["white_gyro"]
     accel = accel + nz["bias_accel"] + nz["white_accel"]
     return SyntheticImu(ImuData(t_ns=t_ns, gyro=gyro, accel=accel),

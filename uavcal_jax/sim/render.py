@@ -26,7 +26,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax.geometry import camera as camera_model
-from uavcal_jax.sim.scene import DETAIL_SIZE, DETAIL_TEXEL, Scene, box_arrays
+from uavcal_jax.sim.config import COLORS
+from uavcal_jax.sim.scene import Scene, box_arrays
+from uavcal_jax.sim.textures import DETAIL_SIZE, DETAIL_TEXEL
 
 __all__ = [
     "RenderOut",
@@ -41,7 +43,6 @@ __all__ = [
 ]
 
 _LUMA = (0.299, 0.587, 0.114)
-_BIG = 1e30
 #: Pixels per tile (rows, cols): boxes are culled per tile.
 DEFAULT_TILE: tuple[int, int] = (48, 64)
 SHADE_CHUNKS = 4
@@ -128,7 +129,7 @@ def _bundle(xp, rays, tile: tuple[int, int]) -> RayBundle:
 
 @functools.lru_cache(maxsize=16)
 def _cached_rays(key: tuple) -> np.ndarray:
-    params, (w, h) = key[:8], key[8:]
+    params, (w, h) = key[:-2], key[-2:]  # see _cam_key
     with jax.enable_x64(True):
         cam64 = camera_model.PinholeRadtan.create(params[:4], params[4:], (w, h), jnp.float64)
         rays = np.asarray(camera_model.pixel_rays(cam64), dtype=np.float32)
@@ -142,7 +143,7 @@ def _cached_bundle(key: tuple, tile: tuple[int, int]) -> RayBundle:
 
 
 def _cam_key(cam: camera_model.PinholeRadtan) -> tuple:
-    params = tuple(float(np.asarray(getattr(cam, n))) for n in camera_model._FIELDS)
+    params = tuple(float(np.asarray(getattr(cam, n))) for n in camera_model.PARAMETER_NAMES)
     return params + (cam.width, cam.height)
 
 
@@ -174,7 +175,7 @@ def ray_bundle(cam_or_rays, tile: tuple[int, int] = DEFAULT_TILE) -> RayBundle:
     return _bundle(jnp, jnp.asarray(rays), tile)
 
 
-def _frame_constants(scene: Scene, R_WC, p_WC, t, color: str):
+def _frame_constants(scene: Scene, p_WC, t, color: str):
     """Per-frame scalars: box frames and slab planes (K,), per-face texture/colour (F,)."""
     f32 = jnp.float32
     center, yaw, half = box_arrays(scene, t)
@@ -380,12 +381,12 @@ def _shade(texture, detail, dx, dy, dz, depth, k, boxes, faces, color: str):
 
 def _render_bundle(scene: Scene, bundle: RayBundle, T_WC, t, color: str) -> RenderOut:
     """Core: one frame along a ray bundle."""
-    if color not in ("gray", "rgb"):
-        raise ValueError(f"color must be 'gray' or 'rgb', got {color!r}")
+    if color not in COLORS:
+        raise ValueError(f"color must be one of {COLORS}, got {color!r}")
     f32 = jnp.float32
     T_WC = jnp.asarray(T_WC, f32)
     R_WC, p_WC = T_WC[:3, :3], T_WC[:3, 3]
-    center, yaw, half, boxes, faces = _frame_constants(scene, R_WC, p_WC, t, color)
+    center, yaw, half, boxes, faces = _frame_constants(scene, p_WC, t, color)
     tile_lo, tile_hi = jnp.asarray(bundle.tile_lo), jnp.asarray(bundle.tile_hi)
     vis = _visibility(_box_corners_cam(center, yaw, half, R_WC, p_WC), tile_lo, tile_hi)
     depth, k = _intersect(bundle, boxes, vis, R_WC)  # (T, P)

@@ -1,16 +1,9 @@
 """Write a recording as an EuRoC ASL folder (``mav0/``), exactly as EuRoC lays it out.
 
-Layout written by :class:`EurocWriter` (every sensor folder has a ``sensor.yaml`` that starts
-with OpenCV's ``%YAML:1.0`` directive and follows EuRoC's key order and comments)::
-
-    mav0/body.yaml
-    mav0/cam0/{sensor.yaml, data.csv, data/<t_ns>.png}        8-bit gray or RGB frames
-    mav0/cam1/...
-    mav0/depth0/{sensor.yaml, data.csv, data/<t_ns>.png}      uint16 z-depth in millimetres
-    mav0/depth1/...                                           (0 = no depth)
-    mav0/imu0/{sensor.yaml, data.csv}                         EuRoC's 7-column IMU table
-    mav0/state_groundtruth_estimate0/{sensor.yaml, data.csv}  EuRoC's 17-column states
-    mav0/target0/{data.csv, classes.txt}                      see uavcal_jax.data.targets
+:class:`EurocWriter` writes the layout of :mod:`uavcal_jax.data.euroc_format` (the names and
+headers :func:`uavcal_jax.data.euroc.read_euroc` reads); every sensor folder has a
+``sensor.yaml`` that starts with OpenCV's ``%YAML:1.0`` directive and follows EuRoC's key order
+and comments.
 
 Numbers in CSV and YAML files are written with Python's shortest round-trip ``repr``, so a
 reader gets back exactly the float64 values that were written.
@@ -30,27 +23,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.data.sequence import CameraCalibration, GroundTruth, ImuCalibration, ImuData
 from uavcal_jax.data.targets import TargetLabels, write_target_labels
+from uavcal_jax.data.yaml_io import imu_noise_to_yaml
 from uavcal_jax.errors import DataError
 
-#: ``data.csv`` header of image streams (cameras and depth).
-IMAGE_HEADER = "#timestamp [ns],filename"
-#: ``imu0/data.csv`` header, as in EuRoC.
-IMU_HEADER = (
-    "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
-    "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]"
-)
-#: ``state_groundtruth_estimate0/data.csv`` header, as in EuRoC.
-GROUND_TRUTH_HEADER = (
-    "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], "
-    "q_RS_z [], v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], "
-    "b_w_RS_S_x [rad s^-1], b_w_RS_S_y [rad s^-1], b_w_RS_S_z [rad s^-1], "
-    "b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], b_a_RS_S_z [m s^-2]"
-)
-GROUND_TRUTH_FOLDER = "state_groundtruth_estimate0"
-#: Depth PNGs hold z-depth in these metres per unit (uint16 millimetres).
-DEPTH_SCALE_M = 1e-3
+__all__ = [
+    "EurocWriter",
+    "camera_sensor_yaml",
+    "depth_to_millimetres",
+    "ground_truth_sensor_yaml",
+    "imu_sensor_yaml",
+]
 
 
 def _num(value: float) -> str:
@@ -108,8 +93,19 @@ def camera_sensor_yaml(calib: CameraCalibration, comment: str,
     return text
 
 
+#: EuRoC's comment after each noise entry of an IMU ``sensor.yaml`` (units and meaning).
+_NOISE_COMMENTS = {
+    "gyroscope_noise_density": '# [ rad / s / sqrt(Hz) ]   ( gyro "white noise" )',
+    "gyroscope_random_walk": "# [ rad / s^2 / sqrt(Hz) ] ( gyro bias diffusion )",
+    "accelerometer_noise_density": '# [ m / s^2 / sqrt(Hz) ]   ( accel "white noise" )',
+    "accelerometer_random_walk": "# [ m / s^3 / sqrt(Hz) ].  ( accel bias diffusion )",
+}
+
+
 def imu_sensor_yaml(calib: ImuCalibration, comment: str) -> str:
-    """An IMU ``sensor.yaml`` in EuRoC's layout."""
+    """An IMU ``sensor.yaml`` in EuRoC's layout (the noise model under Kalibr's key names)."""
+    noise = "".join(_noise_entry(key, value, _NOISE_COMMENTS[key])
+                    for key, value in imu_noise_to_yaml(calib.noise).items())
     return (
         "%YAML:1.0\n"
         "#Default imu sensor yaml file\n"
@@ -121,14 +117,7 @@ def imu_sensor_yaml(calib: ImuCalibration, comment: str) -> str:
         + f"rate_hz: {_num(calib.rate_hz)}\n"
         "\n"
         "# inertial sensor noise model parameters (static)\n"
-        + _noise_entry("gyroscope_noise_density", calib.gyroscope_noise_density,
-                       '# [ rad / s / sqrt(Hz) ]   ( gyro "white noise" )')
-        + _noise_entry("gyroscope_random_walk", calib.gyroscope_random_walk,
-                       "# [ rad / s^2 / sqrt(Hz) ] ( gyro bias diffusion )")
-        + _noise_entry("accelerometer_noise_density", calib.accelerometer_noise_density,
-                       '# [ m / s^2 / sqrt(Hz) ]   ( accel "white noise" )')
-        + _noise_entry("accelerometer_random_walk", calib.accelerometer_random_walk,
-                       "# [ m / s^3 / sqrt(Hz) ].  ( accel bias diffusion )")
+        + noise
         + "\n"
     )
 
@@ -153,7 +142,7 @@ def depth_to_millimetres(depth_m, xp=np):
     ``xp`` is the array namespace (``numpy`` or ``jax.numpy``), so the simulator can convert on
     the device before the transfer.
     """
-    mm = xp.round(depth_m * (1.0 / DEPTH_SCALE_M))
+    mm = xp.round(depth_m * (1.0 / fmt.DEPTH_SCALE_M))
     ok = xp.isfinite(mm) & (mm > 0) & (mm <= 65535)
     return xp.where(ok, mm, 0).astype(xp.uint16)
 
@@ -196,7 +185,7 @@ class EurocWriter:
     def __init__(self, root: str | Path, *, workers: int = 2, max_pending: int = 64,
                  body_comment: str = "uavcal-jax simulated MAV"):
         self.root = Path(root)
-        self.mav0 = self.root / "mav0"
+        self.mav0 = self.root / fmt.MAV0
         _check_clean(self.mav0)
         self.mav0.mkdir(parents=True, exist_ok=True)
         (self.mav0 / "body.yaml").write_text(f"%YAML:1.0\ncomment: {body_comment}\n")
@@ -226,12 +215,12 @@ class EurocWriter:
                          depth: bool = False) -> Path:
         """Create ``mav0/<name>/`` with its ``sensor.yaml`` (``sensor_type: depth`` if depth)."""
         folder = self.mav0 / name
-        (folder / "data").mkdir(parents=True, exist_ok=False)
+        (folder / fmt.IMAGE_FOLDER).mkdir(parents=True, exist_ok=False)
         notes = ""
         if depth:
             notes = ("Depth: uint16 PNG, z-depth in the camera frame in millimetres "
                      "(0 = no depth).\nSame intrinsics and extrinsics as its camera.")
-        (folder / "sensor.yaml").write_text(camera_sensor_yaml(
+        (folder / fmt.SENSOR_YAML).write_text(camera_sensor_yaml(
             calib, comment, sensor_type="depth" if depth else "camera", notes=notes))
         self._streams[name] = []
         if depth:
@@ -260,7 +249,7 @@ class EurocWriter:
             if image.ndim == 3:
                 image = image[..., ::-1]  # RGB -> OpenCV's BGR
         stamps.append(t_ns)
-        path = self.mav0 / name / "data" / f"{t_ns}.png"
+        path = self.mav0 / name / fmt.IMAGE_FOLDER / f"{t_ns}.png"
         while len(self._pending) >= self._max_pending:
             self.encode_seconds += self._pending.popleft().result()
         future = self._pool.submit(_imwrite, path, image)
@@ -270,22 +259,22 @@ class EurocWriter:
     # -- tables ----------------------------------------------------------------------------
 
     def write_imu(self, imu: ImuData, calib: ImuCalibration, *, comment: str,
-                  name: str = "imu0") -> None:
+                  name: str = fmt.IMU_FOLDER) -> None:
         """``mav0/imu0``: ``sensor.yaml`` and the 7-column ``data.csv``."""
         folder = self.mav0 / name
         folder.mkdir(exist_ok=False)
-        (folder / "sensor.yaml").write_text(imu_sensor_yaml(calib, comment))
+        (folder / fmt.SENSOR_YAML).write_text(imu_sensor_yaml(calib, comment))
         values = np.concatenate([imu.gyro, imu.accel], axis=1)
-        (folder / "data.csv").write_text(IMU_HEADER + "\n" + _csv_rows(imu.t_ns, values))
+        (folder / fmt.DATA_CSV).write_text(fmt.IMU_HEADER + "\n" + _csv_rows(imu.t_ns, values))
 
     def write_ground_truth(self, gt: GroundTruth, *, comment: str = (
             "Simulated ground truth: the exact states of the simulated flight (uavcal-jax).")
                            ) -> None:
         """``mav0/state_groundtruth_estimate0``: the 17-column states (missing velocity or
         biases are written as zeros)."""
-        folder = self.mav0 / GROUND_TRUTH_FOLDER
+        folder = self.mav0 / fmt.GROUND_TRUTH_FOLDER
         folder.mkdir(exist_ok=False)
-        (folder / "sensor.yaml").write_text(ground_truth_sensor_yaml(comment))
+        (folder / fmt.SENSOR_YAML).write_text(ground_truth_sensor_yaml(comment))
         n = len(gt)
         zeros = np.zeros((n, 3))
         values = np.concatenate([
@@ -294,9 +283,10 @@ class EurocWriter:
             zeros if gt.bias_gyro is None else gt.bias_gyro,
             zeros if gt.bias_accel is None else gt.bias_accel,
         ], axis=1)
-        (folder / "data.csv").write_text(GROUND_TRUTH_HEADER + "\n" + _csv_rows(gt.t_ns, values))
+        (folder / fmt.DATA_CSV).write_text(fmt.GROUND_TRUTH_HEADER + "\n"
+                                           + _csv_rows(gt.t_ns, values))
 
-    def write_targets(self, labels: TargetLabels, name: str = "target0") -> None:
+    def write_targets(self, labels: TargetLabels, name: str = fmt.TARGET_FOLDER) -> None:
         """``mav0/target0`` (see :func:`uavcal_jax.data.targets.write_target_labels`)."""
         write_target_labels(self.mav0 / name, labels)
 
@@ -315,7 +305,7 @@ class EurocWriter:
             self._pool.shutdown(wait=True, cancel_futures=True)
         for name, stamps in self._streams.items():
             rows = "".join(f"{t},{t}.png\n" for t in stamps)
-            (self.mav0 / name / "data.csv").write_text(IMAGE_HEADER + "\n" + rows)
+            (self.mav0 / name / fmt.DATA_CSV).write_text(fmt.IMAGE_HEADER + "\n" + rows)
 
 
 def _imwrite(path: Path, image: np.ndarray) -> float:

@@ -1,0 +1,73 @@
+"""Evaluate a trained run: the mAP of its checkpoint on its validation split or another set."""
+
+from __future__ import annotations
+
+import functools
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from uavcal_jax.detect.datasets import load_dataset
+from uavcal_jax.detect.loader import DetectionLoader
+from uavcal_jax.detect.metrics import evaluate_predictions
+from uavcal_jax.detect.predict import make_predict_fn, predict_dataset
+from uavcal_jax.detect.run import load_run
+from uavcal_jax.errors import DataError
+
+
+def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: str | None = None,
+                 *, which: str = "best", batch_size: int | None = None,
+                 interpolation: str = "coco101", progress: Callable | None = None,
+                 **predict_changes) -> dict:
+    """mAP@0.5 and mAP@0.5:0.95 of a run's checkpoint; also written to ``run/eval.json``.
+
+    Args:
+        run: a run folder written by :func:`~uavcal_jax.detect.train.train`.
+        data: evaluate on every image of this data set (read with ``data_format``, the run's
+            class list); by default the run's own validation split of its training data.
+        which: ``"best"`` or ``"last"`` checkpoint.
+        batch_size: default the run's training batch size.
+        interpolation: ``"coco101"`` or ``"voc07"``.
+        progress: ``progress(iterable, total=...)`` wrapper of the batches.
+        predict_changes: :class:`~uavcal_jax.detect.config.PredictConfig` fields replaced in
+            the run's ``TrainConfig.predict`` (e.g. ``conf_thresh``).
+
+    Returns :meth:`~uavcal_jax.detect.metrics.MapResult.as_dict` plus where the images came
+    from, their number and boxes, the checkpoint's epoch and the wall time.
+    """
+    t0 = time.perf_counter()
+    run = Path(run)
+    loaded = load_run(run, which)
+    class_names = loaded.data["class_names"]
+    if data is not None:
+        dataset = load_dataset(data, data_format, class_names)
+        where = str(data)
+    else:
+        root = loaded.data["root"]
+        if not Path(root).exists():
+            raise DataError("the run's data set is gone; pass --data", root)
+        dataset = load_dataset(root, loaded.data["format"], class_names)
+        val_ids = (loaded.split or {}).get("val") or []
+        if val_ids:
+            dataset = dataset.subset(val_ids)
+        where = f"{root} (validation split, {len(val_ids)} images)" if val_ids else root
+    if not len(dataset):
+        raise DataError("no images to evaluate", data or loaded.data["root"])
+    det_cfg, train_cfg = loaded.det_cfg, loaded.train_cfg
+    loader = DetectionLoader(dataset, det_cfg.img_size, batch_size or train_cfg.batch_size,
+                             include_difficult=True, cache=False)
+    predict_cfg = train_cfg.predict.replace(**predict_changes)
+    predict_fn = functools.partial(make_predict_fn(det_cfg, predict_cfg), loaded.variables)
+    try:
+        dets = predict_dataset(predict_fn, loader, progress=progress)
+    finally:
+        loader.close()
+    result = evaluate_predictions(dataset.records, dets, det_cfg.num_classes,
+                                  train_cfg.map_max_dets, interpolation)
+    out = result.as_dict(class_names)
+    out.update(run=str(run), data=where, num_images=len(dataset), num_boxes=dataset.num_boxes,
+               interpolation=interpolation, checkpoint_epoch=loaded.meta.get("epoch", -1) + 1,
+               wall_s=round(time.perf_counter() - t0, 2))
+    (run / "eval.json").write_text(json.dumps(out, indent=1))
+    return out

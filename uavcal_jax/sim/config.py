@@ -1,0 +1,178 @@
+"""What a simulated recording is: :class:`SimConfig`, and the calibration and seeds it implies.
+
+A :class:`SimConfig` holds every choice that changes the output (flight, duration, frame size,
+colour, rates, the camera's exposure, gain, noise and motion blur, seed, which streams) and two
+that only change the speed (render batch, PNG threads). Its field defaults are the defaults of
+``uavcal simulate`` and of the benchmarks, which read them from here.
+:func:`camera_calibrations` and :func:`stage_seeds` resolve a configuration into EuRoC's two
+cameras at its resolution and rate, and the seeds of the flight, IMU-noise, scene and
+camera-noise stages; :func:`sensor_model` into the photometric settings of
+:mod:`uavcal_jax.sim.sensor`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from uavcal_jax.data.euroc_rig import EUROC_RATE_HZ, EUROC_RESOLUTION, euroc_calibration
+from uavcal_jax.data.sequence import CameraCalibration
+from uavcal_jax.sim.sensor import SensorModel
+
+__all__ = [
+    "CAMERAS",
+    "COLORS",
+    "SimConfig",
+    "camera_calibrations",
+    "scale_calibration",
+    "sensor_model",
+    "stage_seeds",
+]
+
+#: Simulated camera names; cam N uses EuRoC's cam N calibration.
+CAMERAS = ("cam0", "cam1")
+#: Colour modes of the frames: 8-bit gray (like EuRoC; the default) or RGB.
+COLORS = ("gray", "rgb")
+#: Stages with their own random stream, in :func:`stage_seeds`' order.
+STAGES = ("flight", "imu", "scene", "camera")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Everything that determines a simulated recording.
+
+    Attributes:
+        trajectory: TUM trajectory file to fly (``t tx ty tz qx qy qz qw``, t in seconds), or
+            ``None`` for a procedural flight (hover, turns, climbs, straight legs) from ``seed``.
+        start: seconds after the trajectory file's first timestamp where the recording starts
+            (ignored for procedural flights). Output timestamps stay on the file's clock.
+        duration: seconds of flight to record.
+        resolution: ``(width, height)`` of the frames; other than EuRoC's 752x480, the EuRoC
+            intrinsics are scaled to keep the field of view.
+        color: ``"gray"`` (8-bit single channel, like EuRoC) or ``"rgb"``.
+        seed: seeds the flight, the IMU noise and biases, and the scene.
+        imu_noise: add EuRoC's ADIS16448 noise, bias random walk and turn-on biases; when false
+            the IMU is exact (biases zero). ``imu0/sensor.yaml`` states EuRoC's noise model in
+            both cases.
+        frames: render and write cam0/cam1 (and depth, targets); false writes only the IMU and
+            the ground truth.
+        depth: write depth0/depth1 with the frames.
+        targets: write target0 labels with the frames.
+        camera_rate_hz: frame rate (EuRoC: 20 Hz).
+        imu_rate_hz: IMU and ground-truth rate (EuRoC: 200 Hz).
+        ideal_camera: write the renderer's noise-free, sharp image (``round(255 L)``) and
+            ignore the four camera settings below; false (the default) images like EuRoC's
+            MT9V034 (:mod:`uavcal_jax.sim.sensor`, :mod:`uavcal_jax.sim.motion_blur`).
+        exposure_ms: exposure time, milliseconds. EuRoC's auto-exposure runs at about 1-10 ms
+            indoors; 5 ms is the middle of that range, and with the sensor's calibrated scene
+            illumination and gain 1 it gives V1_01's mean intensity.
+        gain: analog gain (brightness and noise scale with it; 1 = V1_01's measured
+            operating point).
+        sensor_noise: shot noise, read noise (and the full-well clip) on the electrons.
+        blur_samples: sub-exposures averaged for motion blur (1 = no blur); the camera's pose
+            at each comes from the trajectory. Depth and target labels are at mid-exposure.
+        batch_size: frames rendered per jitted call (speed/memory only, not the output).
+        png_workers: threads encoding PNGs (speed only).
+    """
+
+    trajectory: str | None = None
+    start: float = 0.0
+    duration: float = 10.0
+    resolution: tuple[int, int] = EUROC_RESOLUTION
+    color: str = COLORS[0]
+    seed: int = 0
+    imu_noise: bool = True
+    frames: bool = True
+    depth: bool = True
+    targets: bool = True
+    camera_rate_hz: float = EUROC_RATE_HZ
+    imu_rate_hz: float = 200.0
+    ideal_camera: bool = False
+    exposure_ms: float = 5.0
+    gain: float = 1.0
+    sensor_noise: bool = True
+    blur_samples: int = 5
+    batch_size: int = 8
+    png_workers: int = 2
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "resolution", tuple(int(v) for v in self.resolution))
+        for name in ("start", "duration", "camera_rate_hz", "imu_rate_hz", "exposure_ms", "gain"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        if self.trajectory is not None:
+            object.__setattr__(self, "trajectory", os.fspath(self.trajectory))
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` for values out of range (the file is checked by simulate)."""
+        if self.color not in COLORS:
+            raise ValueError(f"color must be one of {COLORS}, got {self.color!r}")
+        if not (np.isfinite(self.duration) and self.duration > 0):
+            raise ValueError(f"duration must be positive, got {self.duration}")
+        if not (np.isfinite(self.start) and self.start >= 0):
+            raise ValueError(f"start must be >= 0 seconds, got {self.start}")
+        if len(self.resolution) != 2 or min(self.resolution) < 8:
+            raise ValueError(f"resolution must be (width, height) >= 8 px, got {self.resolution}")
+        for name in ("camera_rate_hz", "imu_rate_hz"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.camera_rate_hz > self.imu_rate_hz:
+            raise ValueError("camera_rate_hz must not exceed imu_rate_hz")
+        if not (np.isfinite(self.exposure_ms) and self.exposure_ms > 0):
+            raise ValueError(f"exposure_ms must be positive, got {self.exposure_ms}")
+        if self.exposure_ms * 1e-3 > 1.0 / self.camera_rate_hz:
+            raise ValueError(f"exposure_ms {self.exposure_ms:g} is longer than the frame period")
+        if not (np.isfinite(self.gain) and self.gain > 0):
+            raise ValueError(f"gain must be positive, got {self.gain}")
+        if self.blur_samples < 1:
+            raise ValueError(f"blur_samples must be >= 1, got {self.blur_samples}")
+        if self.batch_size < 1 or self.png_workers < 1:
+            raise ValueError("batch_size and png_workers must be >= 1")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as JSON-ready values (``sim_config.json``'s ``config``)."""
+        d = dataclasses.asdict(self)
+        d["resolution"] = list(self.resolution)
+        return d
+
+
+def scale_calibration(calib: CameraCalibration, resolution: tuple[int, int]) -> CameraCalibration:
+    """The same lens on an image of ``resolution = (width, height)`` (field of view kept).
+
+    Pixel centres map as ``u' = sx (u + 0.5) - 0.5`` with ``sx = width' / width`` (and ``sy``
+    likewise), the convention of :meth:`PinholeRadtan.scaled`; distortion is unchanged (it acts
+    on normalised coordinates).
+    """
+    w0, h0 = calib.resolution
+    w, h = (int(v) for v in resolution)
+    if (w, h) == (w0, h0):
+        return calib
+    sx, sy = w / w0, h / h0
+    fu, fv, cu, cv = np.asarray(calib.intrinsics, dtype=np.float64)
+    intr = np.array([fu * sx, fv * sy, (cu + 0.5) * sx - 0.5, (cv + 0.5) * sy - 0.5])
+    return dataclasses.replace(calib, intrinsics=intr, resolution=(w, h))
+
+
+def camera_calibrations(config: SimConfig) -> dict[str, CameraCalibration]:
+    """EuRoC cam0/cam1 at the configured resolution and frame rate."""
+    out = {}
+    for i, name in enumerate(CAMERAS):
+        calib = scale_calibration(euroc_calibration(i), config.resolution)
+        out[name] = dataclasses.replace(calib, rate_hz=float(config.camera_rate_hz))
+    return out
+
+
+def sensor_model(config: SimConfig) -> SensorModel:
+    """The configuration's photometric settings (exposure, gain; the sensor's constants)."""
+    return SensorModel(exposure_s=config.exposure_ms * 1e-3, gain=config.gain)
+
+
+def stage_seeds(seed: int) -> dict[str, int]:
+    """Independent seeds for the flight, the IMU noise, the scene and the camera noise, derived
+    from ``seed`` (a SeedSequence's words in :data:`STAGES` order: adding a stage at the end
+    leaves the earlier seeds as they were)."""
+    state = np.random.SeedSequence(int(seed)).generate_state(len(STAGES), dtype=np.uint32)
+    return {name: int(s) & 0x7FFFFFFF for name, s in zip(STAGES, state, strict=True)}
