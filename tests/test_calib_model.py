@@ -1,0 +1,137 @@
+"""The calibrator network: patch unfolding, frame-token reuse equals the full model, padded
+frames are ignored, the IMU-only variant, and the RGB colour-compression path (eq. 1-2)."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from uavcal_jax.calib import inference
+from uavcal_jax.calib.config import CalibConfig, with_overrides
+from uavcal_jax.calib.model import GRAY_WEIGHTS, Calibrator, patchify
+from uavcal_jax.calib.train import create_train_state
+
+# The tiny configuration of tests/test_calib_train.py: its initialiser compiles once for both.
+CONFIG = with_overrides(CalibConfig(), [
+    "model.d_model=32", "model.layers=1", "model.heads=2", "model.patch=16,16",
+    "train.batch_size=4", "train.learning_rate=1e-3"])
+TINY = CONFIG.model
+H, W, T = 36, 64, 8  # 36 rows pad to 48: 3 x 4 = 12 patches of 16x16
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    """12 frames of a sequence, and 4 windows of 8 into it (stride 2; the last one has a
+    padded slot)."""
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (12, H, W), dtype=np.uint8)
+    index = np.stack([np.arange(s, s + T) for s in (0, 2, 4, 4)]).astype(np.int32)
+    index[3, 5] = -1
+    mask = index >= 0
+    imu = rng.normal(0, 1, (4, T, 6)).astype(np.float32) * mask[..., None]
+    return frames, index, mask, imu
+
+
+@pytest.fixture(scope="module")
+def gray(sequence, xla_cache):
+    """The tiny gray model, its variables and its jitted apply (float32 frames: one compile
+    serves every test)."""
+    frames, index, mask, imu = sequence
+    model = Calibrator(TINY)
+    state = create_train_state(CONFIG, jax.random.key(0),
+                               {"frames": frames[index[:1]], "imu": imu[:1], "mask": mask[:1]})
+    return model, state.variables(), jax.jit(model.apply)
+
+
+def _gather(frames, index):
+    out = frames[np.maximum(index, 0)].astype(np.float32)
+    out[index < 0] = 0
+    return out
+
+
+def test_patchify_matches_a_direct_unfold():
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(2, 5, 7)).astype(np.float32)
+    got = np.asarray(patchify(jnp.asarray(x), (2, 3)))
+    padded = np.zeros((2, 6, 9), np.float32)
+    padded[:, :5, :7] = x
+    want = [[padded[i, r:r + 2, c:c + 3].ravel() for r in range(0, 6, 2) for c in range(0, 9, 3)]
+            for i in range(2)]
+    np.testing.assert_array_equal(got, np.asarray(want))
+
+
+def test_reusing_frame_tokens_equals_the_full_model(gray, sequence):
+    model, variables, apply = gray
+    frames, index, mask, imu = sequence
+    full = apply(variables, _gather(frames, index), imu, mask)
+    assert full.shape == (4, 6) and full.dtype == jnp.float32
+    tokens = inference.encode_frames(model, variables, frames, chunk=5)  # 3 chunks, last padded
+    assert tokens.shape == (12, TINY.d_model)
+    reused = inference.predict_windows(model, variables, tokens, index, mask, imu)
+    np.testing.assert_allclose(np.asarray(reused), np.asarray(full), atol=1e-5, rtol=1e-5)
+    # windows 2 and 3 differ only by a padded slot: it must change the prediction
+    assert np.abs(np.asarray(full[2] - full[3])).max() > 1e-4
+
+
+def test_padded_frames_change_nothing(gray, sequence):
+    _, variables, apply = gray
+    frames, index, mask, imu = sequence
+    x = _gather(frames, index)
+    noisy_x, noisy_imu = x.copy(), imu.copy()
+    noisy_x[3, 5] = 255
+    noisy_imu[3, 5] = 100.0
+    np.testing.assert_allclose(np.asarray(apply(variables, noisy_x, noisy_imu, mask)),
+                               np.asarray(apply(variables, x, imu, mask)), atol=1e-6)
+
+
+def test_imu_only_variant_has_no_video_block(gray, sequence):
+    _, gvars, _ = gray
+    _, index, mask, imu = sequence
+    model = Calibrator(dataclasses.replace(TINY, use_video=False))
+    shapes = jax.eval_shape(lambda: model.init(jax.random.key(0), None, imu, mask))
+    assert set(shapes["params"]) == {"imu_reducer", "noise_predictor"}
+    # the same blocks as the video model's: reuse its trained-from-init weights
+    variables = {"params": {k: gvars["params"][k] for k in shapes["params"]}}
+    out = jax.jit(lambda v, i, m: model.apply(v, None, i, m))(variables, imu, mask)
+    assert out.shape == (4, 6) and bool(jnp.all(jnp.isfinite(out)))
+    with pytest.raises(ValueError, match="IMU-only"):
+        model.apply(variables, np.zeros((1, T, H, W)), method=Calibrator.encode_frames)
+
+
+def test_rgb_path_is_gray_plus_colour_compression(gray, sequence):
+    """Eq. 1-2: with the batch norm's scale and shift zeroed the CNN adds nothing, so the RGB
+    model equals the gray model on the frames' luma; in training mode the batch norm's
+    statistics come from the real frames only."""
+    _, gvars, gapply = gray
+    _, index, mask, imu = sequence
+    rgb = np.random.default_rng(2).integers(0, 256, (4, T, 3, H, W)).astype(np.float32)
+    model = Calibrator(dataclasses.replace(TINY, rgb=True))
+    shapes = jax.eval_shape(lambda: model.init(jax.random.key(0), rgb[:1], imu[:1], mask[:1]))
+    ccn_shapes = shapes["params"]["frame_encoder"]["ccn"]
+    assert ccn_shapes["conv"]["kernel"].shape == (3, 3, 3, 1)
+    assert set(shapes["batch_stats"]["frame_encoder"]["ccn"]["norm"]) == {"mean", "var"}
+    params = dict(gvars["params"])
+    params["frame_encoder"] = {**params["frame_encoder"], "ccn": {
+        "conv": {"kernel": jnp.full((3, 3, 3, 1), 0.01), "bias": jnp.zeros(1)},
+        "norm": {"scale": jnp.zeros(1), "bias": jnp.zeros(1)}}}
+    stats = {"frame_encoder": {"ccn": {"norm": {"mean": jnp.zeros(1), "var": jnp.ones(1)}}}}
+
+    @jax.jit
+    def both(v, x, i, m, key):
+        out = model.apply(v, x, i, m)
+        _, upd = model.apply(v, x, i, m, deterministic=False, mutable=["batch_stats"],
+                             rngs={"dropout": key})
+        return out, upd["batch_stats"]["frame_encoder"]["ccn"]["norm"]
+
+    got, new = both({"params": params, "batch_stats": stats}, rgb, imu, mask, jax.random.key(3))
+    luma = np.tensordot(np.asarray(GRAY_WEIGHTS, np.float32), rgb, axes=([0], [2]))
+    want = gapply(gvars, luma, imu, mask)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-5, rtol=1e-5)
+    # running mean after one step: 0.9 * 0 + 0.1 * mean of relu(conv) over real frames
+    x = np.moveaxis(rgb[mask] / 255.0, 1, -1)
+    conv = jax.lax.conv_general_dilated(x, np.full((3, 3, 3, 1), 0.01, np.float32), (1, 1),
+                                        "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    np.testing.assert_allclose(float(new["mean"][0]), 0.1 * float(jnp.mean(jax.nn.relu(conv))),
+                               rtol=1e-4)

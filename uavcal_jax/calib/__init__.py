@@ -1,0 +1,92 @@
+"""The transformer IMU self-calibrator of Avola et al. (Sensors 2023, 23, 2655).
+
+Modules: :mod:`~uavcal_jax.calib.config` (every option, paper defaults, ``key=value``
+overrides), :mod:`~uavcal_jax.calib.layers` (transformer encoder/decoder stacks),
+:mod:`~uavcal_jax.calib.model` (the network, section 3), :mod:`~uavcal_jax.calib.loss`
+(eq. 15-18), :mod:`~uavcal_jax.calib.metrics` (eq. 19-23), :mod:`~uavcal_jax.calib.inject`
+(offset protocols, eq. 12), :mod:`~uavcal_jax.calib.batch` (window batches to model inputs),
+:mod:`~uavcal_jax.calib.inference` (frame-token reuse over a sequence) and
+:mod:`~uavcal_jax.calib.train` (jitted steps, vmapped seeds, data parallel) and
+:mod:`~uavcal_jax.calib.baselines` (the mean-offset and classical least-squares baselines).
+"""
+
+from uavcal_jax.calib.baselines import (
+    LeastSquaresConfig,
+    least_squares_offset,
+    least_squares_windows,
+    mean_offset,
+    mean_offset_predictions,
+    sequence_offset,
+)
+from uavcal_jax.calib.batch import frames_to_model, model_batch
+from uavcal_jax.calib.config import (
+    CalibConfig,
+    InjectionConfig,
+    LossConfig,
+    ModelConfig,
+    TrainConfig,
+    config_from_dict,
+    config_to_dict,
+    with_overrides,
+)
+from uavcal_jax.calib.inject import (
+    ImuStats,
+    imu_statistics,
+    inject,
+    sample_offset,
+    training_offsets,
+    validation_offsets,
+)
+from uavcal_jax.calib.loss import calibration_loss, loss_terms
+from uavcal_jax.calib.metrics import calibration_metrics, metric_sums, metrics_from_sums
+from uavcal_jax.calib.model import Calibrator, build_model
+from uavcal_jax.calib.train import (
+    CalibState,
+    create_train_state,
+    create_train_states,
+    data_parallel,
+    eval_step,
+    eval_step_seeds,
+    train_step,
+    train_step_seeds,
+)
+
+__all__ = [
+    "CalibConfig",
+    "CalibState",
+    "Calibrator",
+    "ImuStats",
+    "InjectionConfig",
+    "LeastSquaresConfig",
+    "LossConfig",
+    "ModelConfig",
+    "TrainConfig",
+    "build_model",
+    "calibration_loss",
+    "calibration_metrics",
+    "config_from_dict",
+    "config_to_dict",
+    "create_train_state",
+    "create_train_states",
+    "data_parallel",
+    "eval_step",
+    "eval_step_seeds",
+    "frames_to_model",
+    "imu_statistics",
+    "inject",
+    "least_squares_offset",
+    "least_squares_windows",
+    "loss_terms",
+    "mean_offset",
+    "mean_offset_predictions",
+    "metric_sums",
+    "metrics_from_sums",
+    "model_batch",
+    "sample_offset",
+    "sequence_offset",
+    "train_step",
+    "train_step_seeds",
+    "training_offsets",
+    "validation_offsets",
+    "with_overrides",
+]

@@ -1,0 +1,321 @@
+"""Configuration of the IMU-offset transformer (Avola et al., Sensors 2023, 23, 2655).
+
+Frozen dataclasses; every default is the paper's (section 3, Table 2) unless its docstring
+says otherwise. The window geometry (10 s windows, 1 s stride, 320x180 frames, gray or RGB
+decoding) is *not* repeated here: it lives in :class:`uavcal_jax.data.windows.WindowConfig`,
+and the model reads frame size and frames per window from the arrays it is given.
+
+:func:`with_overrides` applies ``"section.field=value"`` strings (the CLI's ``--set``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+__all__ = [
+    "ACTIVATIONS",
+    "FRAME_TOKENS",
+    "PROTOCOLS",
+    "SIGN_TERMS",
+    "CalibConfig",
+    "InjectionConfig",
+    "LossConfig",
+    "ModelConfig",
+    "TrainConfig",
+    "config_from_dict",
+    "config_to_dict",
+    "with_overrides",
+]
+
+ACTIVATIONS = ("relu", "gelu")
+FRAME_TOKENS = ("learned", "first_patch")
+SIGN_TERMS = ("sign", "tanh")
+PROTOCOLS = ("paper", "symmetric", "physical")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The network (paper section 3, Table 2).
+
+    Attributes:
+        d_model: token width ``d`` (256).
+        heads: attention heads of every encoder/decoder (8).
+        layers: layers of every encoder and of the decoder (2).
+        ff_dim: hidden width of every feed-forward block; ``None``: ``4 * d_model`` (the
+            PyTorch default the paper's implementation inherits: 1024).
+        activation: ``"relu"`` (paper) or ``"gelu"``, everywhere an activation appears.
+        dropout: every dropout rate (1 %).
+        patch: patch ``(height, width)`` in pixels (64x64); frames are zero-padded at the
+            bottom/right to a multiple of it.
+        rgb: ``False``: grayscale frames ``(B, n, h, w)``; ``True``: RGB ``(B, n, 3, h, w)``
+            through the colour-compression CNN of eq. 1-2.
+        imu_channels: IMU values per sample and offsets predicted: 6 (gyro xyz, accel xyz)
+            or 3 (a data set with one sensor).
+        use_video: ``False`` is the IMU-only variant (no video reducer block).
+        frame_token: ``"learned"``: a learned token is prepended to each frame's patch
+            tokens and its output row is the frame token (eq. 6); ``"first_patch"``: the
+            output row of the first patch is used (the PyTorch peer).
+        max_frames: length of the temporal/IMU/fusion positional embeddings; ``None``: the
+            frames per window of the batch the model is initialised with.
+        norm_first: ``False``: post-norm layers (PyTorch's default, the paper); ``True``:
+            pre-norm.
+        pixel_scale: multiplies uint8 pixel values before the network (1/255: [0, 1]).
+        layer_norm_eps: epsilon of every layer norm (PyTorch's 1e-5).
+    """
+
+    d_model: int = 256
+    heads: int = 8
+    layers: int = 2
+    ff_dim: int | None = None
+    activation: str = "relu"
+    dropout: float = 0.01
+    patch: tuple[int, int] = (64, 64)
+    rgb: bool = False
+    imu_channels: int = 6
+    use_video: bool = True
+    frame_token: str = "learned"
+    max_frames: int | None = None
+    norm_first: bool = False
+    pixel_scale: float = 1.0 / 255.0
+    layer_norm_eps: float = 1e-5
+
+    def __post_init__(self) -> None:
+        if self.d_model <= 0 or self.heads <= 0 or self.d_model % self.heads:
+            raise ValueError(f"d_model ({self.d_model}) must be a positive multiple of heads "
+                             f"({self.heads})")
+        if self.layers < 1:
+            raise ValueError(f"layers must be >= 1, got {self.layers}")
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"activation must be one of {ACTIVATIONS}, got {self.activation!r}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if len(self.patch) != 2 or min(self.patch) <= 0:
+            raise ValueError(f"patch must be (height, width) > 0, got {self.patch}")
+        if self.imu_channels not in (3, 6):
+            raise ValueError(f"imu_channels must be 3 or 6, got {self.imu_channels}")
+        if self.frame_token not in FRAME_TOKENS:
+            raise ValueError(f"frame_token must be one of {FRAME_TOKENS}, "
+                             f"got {self.frame_token!r}")
+
+    @property
+    def ff_width(self) -> int:
+        """The feed-forward hidden width actually used."""
+        return 4 * self.d_model if self.ff_dim is None else self.ff_dim
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """The loss of eq. 15-18: ``w_o * L_offset + w_s * L_sign + w_m * L_magnitude``.
+
+    Attributes:
+        sign_term: ``"sign"`` (as written: ``MSE(sign(o_hat), sign(o))``, zero gradient almost
+            everywhere) or ``"tanh"`` (smooth surrogate ``MSE(tanh(o_hat / tau), sign(o))``).
+        tau: temperature of the surrogate, in the offsets' units (rad/s, m/s^2).
+        w_offset, w_sign, w_magnitude: term weights (the paper sums them: all 1).
+    """
+
+    sign_term: str = "sign"
+    tau: float = 0.05
+    w_offset: float = 1.0
+    w_sign: float = 1.0
+    w_magnitude: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.sign_term not in SIGN_TERMS:
+            raise ValueError(f"sign_term must be one of {SIGN_TERMS}, got {self.sign_term!r}")
+        if self.tau <= 0:
+            raise ValueError(f"tau must be positive, got {self.tau}")
+
+
+@dataclass(frozen=True)
+class InjectionConfig:
+    """How training/validation offsets are drawn (section 3.4, eq. 12).
+
+    Attributes:
+        protocol: ``"paper"``: per channel ``o ~ N(mu, n_m * sigma^2)`` (variance ``n_m``
+            times the training set's, so the standard deviation is ``sqrt(n_m) * sigma``);
+            ``"symmetric"``: per channel ``o ~ U(-n_m * sigma, n_m * sigma)``, the interval
+            variant of the text; ``"physical"``: per channel ``U(-r, r)`` with ``r`` =
+            ``gyro_range`` (rad/s) or ``accel_range`` (m/s^2), independent of the data.
+        noise_multiplier: ``n_m`` (2).
+        gyro_range: physical protocol, per-axis bound of gyro offsets, rad/s. A per-axis
+            ``U(-r, r)`` has an RMS norm of ``r``: 0.08 rad/s, the size of EuRoC's
+            ground-truth gyro biases.
+        accel_range: physical protocol, per-axis bound of accel offsets, m/s^2 (0.16: EuRoC's
+            accelerometer biases in norm).
+        single_sensor: physical protocol with a 3-channel IMU: which range applies
+            (``"gyro"`` or ``"accel"``).
+    """
+
+    protocol: str = "paper"
+    noise_multiplier: float = 2.0
+    gyro_range: float = 0.08
+    accel_range: float = 0.16
+    single_sensor: str = "gyro"
+
+    def __post_init__(self) -> None:
+        if self.single_sensor not in ("gyro", "accel"):
+            raise ValueError(f"single_sensor must be 'gyro' or 'accel', "
+                             f"got {self.single_sensor!r}")
+        if self.protocol not in PROTOCOLS:
+            raise ValueError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
+        if self.noise_multiplier <= 0 or self.gyro_range < 0 or self.accel_range < 0:
+            raise ValueError("noise_multiplier must be positive and the ranges non-negative")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation (Table 2, section 4.4).
+
+    Attributes:
+        batch_size: windows per step (16; the paper uses 8 for its long Zurich-like sequence).
+        learning_rate: AdamW learning rate (1e-5).
+        weight_decay: AdamW decoupled weight decay (0.01, PyTorch's AdamW default, which the
+            paper's PyTorch implementation inherits).
+        b1, b2, eps: AdamW moments and epsilon (PyTorch's defaults).
+        epochs: most epochs to run.
+        patience: stop after this many epochs without improvement (3).
+        seed: base seed.
+        seeds: ``K`` independently initialised models trained in one vmapped step.
+        freeze_key_bias: zero the attention key biases' gradients (exactly zero in exact
+            arithmetic; see :func:`uavcal_jax.calib.train.make_optimizer`).
+    """
+
+    batch_size: int = 16
+    learning_rate: float = 1e-5
+    weight_decay: float = 0.01
+    b1: float = 0.9
+    b2: float = 0.999
+    eps: float = 1e-8
+    epochs: int = 100
+    patience: int = 3
+    seed: int = 0
+    seeds: int = 1
+    freeze_key_bias: bool = True
+
+    def __post_init__(self) -> None:
+        if self.batch_size < 1 or self.epochs < 1 or self.patience < 1 or self.seeds < 1:
+            raise ValueError("batch_size, epochs, patience and seeds must be >= 1")
+        if self.learning_rate <= 0 or self.weight_decay < 0:
+            raise ValueError("learning_rate must be positive and weight_decay non-negative")
+
+
+@dataclass(frozen=True)
+class CalibConfig:
+    """The whole calibrator configuration: one section per concern."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    injection: InjectionConfig = field(default_factory=InjectionConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+
+def config_to_dict(config) -> dict:
+    """A JSON-ready dict of a (nested) config dataclass; tuples become lists."""
+    return dataclasses.asdict(config)
+
+
+def config_from_dict(cls, data: Mapping):
+    """Rebuild ``cls`` from :func:`config_to_dict` output; unknown keys raise ``KeyError``."""
+    return _build(cls, data, prefix="")
+
+
+def _build(cls, data: Mapping, prefix: str):
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise KeyError(f"unknown config key {prefix + unknown[0]!r}; valid keys: "
+                       f"{', '.join(prefix + n for n in sorted(names))}")
+    kwargs = {}
+    for name, value in data.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint):
+            kwargs[name] = _build(hint, value, prefix=f"{prefix}{name}.")
+        elif isinstance(value, list):
+            kwargs[name] = tuple(value)
+        else:
+            kwargs[name] = value
+    return cls(**kwargs)
+
+
+def _valid_keys(cls, prefix: str = "") -> list[str]:
+    hints = typing.get_type_hints(cls)
+    keys = []
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(hints[f.name]):
+            keys += _valid_keys(hints[f.name], f"{prefix}{f.name}.")
+        else:
+            keys.append(prefix + f.name)
+    return keys
+
+
+def _parse(text: str, hint, key: str):
+    """``text`` converted to the field type ``hint`` (bool, int, float, str, tuple, Optional)."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if text.strip().lower() in ("none", "null") and type(None) in args:
+            return None
+        (inner,) = [a for a in args if a is not type(None)]
+        return _parse(text, inner, key)
+    if origin is tuple:
+        parts = [p for p in text.replace("x", ",").split(",") if p.strip()]
+        inner = args[0] if args else str
+        if args and args[-1] is not Ellipsis and len(parts) != len(args):
+            raise ValueError(f"{key}: expected {len(args)} comma-separated values, got {text!r}")
+        return tuple(_parse(p.strip(), inner, key) for p in parts)
+    if hint is bool:
+        low = text.strip().lower()
+        if low in ("1", "true", "yes", "on"):
+            return True
+        if low in ("0", "false", "no", "off"):
+            return False
+        raise ValueError(f"{key}: expected a boolean (true/false), got {text!r}")
+    if hint in (int, float):
+        try:
+            return hint(text)
+        except ValueError:
+            raise ValueError(f"{key}: expected {hint.__name__}, got {text!r}") from None
+    return text
+
+
+def with_overrides(config, overrides: Iterable[str] | Mapping[str, object]):
+    """``config`` with ``"section.field=value"`` overrides applied (values parsed to the
+    field's type; ``None``/``none`` for optional fields; tuples as ``64,64`` or ``64x64``).
+
+    A mapping may give already-typed values. Dataclass validation runs on the result.
+
+    Raises:
+        KeyError: an unknown key; the message names it and lists every valid key.
+        ValueError: a value that does not parse, or fails the config's validation.
+    """
+    items = overrides.items() if isinstance(overrides, Mapping) else (
+        _split(s) for s in overrides)
+    valid = _valid_keys(type(config))
+    for key, value in items:
+        if key not in valid:
+            raise KeyError(f"unknown config key {key!r}; valid keys: {', '.join(valid)}")
+        config = _replace_path(config, key.split("."), value, key)
+    return config
+
+
+def _split(text: str) -> tuple[str, str]:
+    if "=" not in text:
+        raise ValueError(f"override {text!r} is not key=value")
+    key, value = text.split("=", 1)
+    return key.strip(), value.strip()
+
+
+def _replace_path(obj, path: list[str], value, key: str):
+    name = path[0]
+    if len(path) > 1:
+        return dataclasses.replace(obj, **{name: _replace_path(getattr(obj, name), path[1:],
+                                                                value, key)})
+    if isinstance(value, str):
+        value = _parse(value, typing.get_type_hints(type(obj))[name], key)
+    return dataclasses.replace(obj, **{name: value})

@@ -1,0 +1,234 @@
+"""The IMU-offset transformer of Avola et al. (Sensors 2023, 23, 2655), section 3, in Flax.
+
+Shapes: ``B`` windows, ``n`` frames (and IMU samples, one per frame) per window, ``h x w``
+frames, ``p`` patches per frame, ``d`` token width, ``C`` IMU channels (6: gyro xyz in
+rad/s, accel xyz in m/s^2, the IMU/body frame).
+
+- **Video reducer block (VRB).** Frames ``(B, n, h, w)`` grayscale or ``(B, n, 3, h, w)`` RGB,
+  uint8 or float, scaled by ``pixel_scale``. RGB goes through the colour-compression CNN
+  (a 3D convolution with kernel (1, 3, 3), i.e. a per-frame 3x3 convolution, an activation
+  and batch norm, to one channel) and is summed with its grayscale image (eq. 1-2). Frames
+  are zero-padded at the bottom/right to a multiple of the patch, unfolded into ``p``
+  row-major patches, projected by ``Linear -> activation -> dropout`` (eq. 3), summed with
+  learned positional embeddings, and one transformer encoder *shared by every frame* reads
+  each frame's tokens; the output row of a learned first token is the frame's token (eq. 6).
+  These frame tokens ``(B, n, d)`` plus learned temporal embeddings go through a temporal
+  encoder (eq. 7): ``T_v``.
+- **IMU reducer block (IRB).** Each IMU vector ``(C,)`` through ``Linear -> activation ->
+  dropout -> dropout -> Linear`` (eq. 8), plus learned positional embeddings, an encoder
+  (eq. 9): ``T_i``.
+- **Noise predictor block (NPB).** ``T_v + T_i`` plus positional embeddings through an
+  encoder (eq. 10); a decoder whose target is one learned query ``L`` and whose memory is
+  that encoder's output; a linear layer to the ``C`` offsets (eq. 11).
+
+The IMU-only variant (``use_video=False``) drops the VRB: the NPB reads ``T_i`` alone.
+
+The frame encoder depends on one frame only, so :meth:`Calibrator.encode_frames` and
+:meth:`Calibrator.predict_from_frame_tokens` split the model at the frame tokens: over a
+sequence each frame is encoded once and its token reused by every window holding it
+(:mod:`uavcal_jax.calib.inference`).
+
+Padded frames (``mask`` False) are never attended to by any token sequence after the frame
+encoder, so they change nothing. The RGB batch norm keeps running statistics in the
+``batch_stats`` collection (apply with ``mutable=["batch_stats"]`` when training); padded
+frames are excluded from its batch statistics.
+"""
+
+from __future__ import annotations
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from uavcal_jax.calib.config import ModelConfig
+from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encoder
+
+__all__ = ["GRAY_WEIGHTS", "Calibrator", "build_model", "patchify"]
+
+F32 = jnp.float32
+
+# ITU-R BT.601 luma weights (as OpenCV's and torchvision's RGB-to-gray): the grayscale image
+# of eq. 1 that the colour-compression output is added to.
+GRAY_WEIGHTS = (0.299, 0.587, 0.114)
+
+_embedding_init = nn.initializers.normal(stddev=0.02)
+
+
+def patchify(frames: jax.Array, patch: tuple[int, int]) -> jax.Array:
+    """Zero-pad ``frames (N, h, w)`` at the bottom/right to multiples of ``patch`` and unfold
+    into non-overlapping row-major patches ``(N, p, ph * pw)``, each patch row-major."""
+    ph, pw = patch
+    n, h, w = frames.shape
+    frames = jnp.pad(frames, ((0, 0), (0, -h % ph), (0, -w % pw)))
+    gh, gw = frames.shape[1] // ph, frames.shape[2] // pw
+    x = frames.reshape(n, gh, ph, gw, pw).transpose(0, 1, 3, 2, 4)
+    return x.reshape(n, gh * gw, ph * pw)
+
+
+def _positions(module: nn.Module, name: str, length: int, needed: int, d: int) -> jax.Array:
+    """Learned embeddings ``(needed, d)``: the first rows of a ``(length, d)`` table."""
+    table = module.param(name, _embedding_init, (length, d), F32)
+    if needed > table.shape[0]:
+        raise ValueError(f"{name}: {needed} positions needed, the model was built for "
+                         f"{table.shape[0]} (ModelConfig.max_frames or the init batch)")
+    return table[:needed]
+
+
+class ColorCompression(nn.Module):
+    """Eq. 1-2: RGB frames ``(N, 3, h, w)`` -> gray + BN(act(conv(RGB))), ``(N, h, w)``."""
+
+    config: ModelConfig
+
+    @nn.compact
+    def __call__(self, rgb: jax.Array, valid: jax.Array | None, train: bool) -> jax.Array:
+        gray = jnp.tensordot(jnp.asarray(GRAY_WEIGHTS, F32), rgb, axes=([0], [1]))
+        x = jnp.moveaxis(rgb, 1, -1)  # (N, h, w, 3): flax convolves channel-last
+        x = nn.Conv(1, (3, 3), padding="SAME", dtype=F32, param_dtype=F32,
+                    kernel_init=LINEAR_INIT, name="conv")(x)
+        x = ACTIVATION_FNS[self.config.activation](x)
+        mask = None if valid is None else valid.reshape(-1, 1, 1, 1).astype(bool)
+        # PyTorch's BatchNorm momentum 0.1 is flax's 0.9 (weight of the old running value).
+        x = nn.BatchNorm(use_running_average=not train, momentum=0.9, epsilon=1e-5, dtype=F32,
+                         param_dtype=F32, name="norm")(x, mask=mask)
+        return gray + x[..., 0]
+
+
+class FrameEncoder(nn.Module):
+    """VRB, per-frame part (eq. 1-6): frames ``(N, h, w)`` / ``(N, 3, h, w)`` -> ``(N, d)``."""
+
+    config: ModelConfig
+
+    @nn.compact
+    def __call__(self, frames, valid=None, *, deterministic: bool = True):
+        c = self.config
+        x = jnp.asarray(frames).astype(F32) * F32(c.pixel_scale)
+        if c.rgb:
+            x = ColorCompression(c, name="ccn")(x, valid, not deterministic)
+        tokens = patchify(x, c.patch)  # (N, p, ph*pw)
+        tokens = nn.Dense(c.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
+                          name="patch_proj")(tokens)
+        tokens = ACTIVATION_FNS[c.activation](tokens)
+        tokens = nn.Dropout(c.dropout)(tokens, deterministic=deterministic)
+        n_tok = tokens.shape[1]
+        if c.frame_token == "learned":
+            first = self.param("frame_token", _embedding_init, (1, 1, c.d_model), F32)
+            tokens = jnp.concatenate([jnp.broadcast_to(first, (tokens.shape[0], 1, c.d_model)),
+                                      tokens], axis=1)
+            n_tok += 1
+        pos = self.param("pos_patch", _embedding_init, (n_tok, c.d_model), F32)
+        if pos.shape[0] != n_tok:
+            raise ValueError(f"frames give {tokens.shape[1]} tokens per frame, the model was "
+                             f"built for {pos.shape[0]} (another frame or patch size)")
+        out = Encoder(c, name="spatial_encoder")(tokens + pos, deterministic=deterministic)
+        return out[:, 0]
+
+
+class VideoTemporal(nn.Module):
+    """VRB, temporal part (eq. 7): frame tokens ``(B, n, d)`` -> ``T_v (B, n, d)``."""
+
+    config: ModelConfig
+
+    @nn.compact
+    def __call__(self, frame_tokens, mask, *, deterministic: bool = True):
+        c = self.config
+        n = frame_tokens.shape[1]
+        x = frame_tokens.astype(F32) + _positions(self, "pos_time", c.max_frames or n, n,
+                                                  c.d_model)
+        return Encoder(c, name="temporal_encoder")(x, mask, deterministic=deterministic)
+
+
+class ImuReducer(nn.Module):
+    """IRB (eq. 8-9): IMU ``(B, n, C)`` -> ``T_i (B, n, d)``."""
+
+    config: ModelConfig
+
+    @nn.compact
+    def __call__(self, imu, mask, *, deterministic: bool = True):
+        c = self.config
+        n = imu.shape[1]
+        x = nn.Dense(c.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
+                     name="linear1")(imu.astype(F32))
+        x = ACTIVATION_FNS[c.activation](x)
+        x = nn.Dropout(c.dropout)(x, deterministic=deterministic)
+        x = nn.Dropout(c.dropout)(x, deterministic=deterministic)  # eq. 8 has two
+        x = nn.Dense(c.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
+                     name="linear2")(x)
+        x = x + _positions(self, "pos_imu", c.max_frames or n, n, c.d_model)
+        return Encoder(c, name="imu_encoder")(x, mask, deterministic=deterministic)
+
+
+class NoisePredictor(nn.Module):
+    """NPB (eq. 10-11): ``T_v + T_i (B, n, d)`` -> offsets ``(B, C)``."""
+
+    config: ModelConfig
+
+    @nn.compact
+    def __call__(self, tokens, mask, *, deterministic: bool = True):
+        c = self.config
+        n = tokens.shape[1]
+        x = tokens + _positions(self, "pos_fusion", c.max_frames or n, n, c.d_model)
+        memory = Encoder(c, name="encoder")(x, mask, deterministic=deterministic)
+        query = self.param("query", _embedding_init, (1, 1, c.d_model), F32)
+        query = jnp.broadcast_to(query, (tokens.shape[0], 1, c.d_model))
+        out = Decoder(c, name="decoder")(query, memory, mask, deterministic=deterministic)
+        return nn.Dense(c.imu_channels, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
+                        name="head")(out[:, 0])
+
+
+class Calibrator(nn.Module):
+    """The whole model; see the module docstring.
+
+    ``__call__(frames, imu, mask, deterministic=True) -> offsets (B, C)`` with ``frames``
+    ``(B, n, h, w)`` / ``(B, n, 3, h, w)`` (ignored, may be ``None``, when ``use_video`` is
+    False), ``imu (B, n, C)`` and ``mask (B, n)`` bool (``True`` on real frames).
+    Dropout draws from the ``"dropout"`` rng stream when ``deterministic`` is False.
+    """
+
+    config: ModelConfig
+
+    def setup(self) -> None:
+        c = self.config
+        if c.use_video:
+            self.frame_encoder = FrameEncoder(c)
+            self.video_temporal = VideoTemporal(c)
+        self.imu_reducer = ImuReducer(c)
+        self.noise_predictor = NoisePredictor(c)
+
+    def encode_frames(self, frames, valid=None, *, deterministic: bool = True) -> jax.Array:
+        """Frame tokens ``(..., d)`` of frames ``(..., h, w)`` (gray) or ``(..., 3, h, w)``
+        (RGB), any leading shape; ``valid`` (leading shape) drops padded frames from the
+        RGB batch norm's statistics. Each output row depends on its frame only (in
+        deterministic mode)."""
+        if not self.config.use_video:
+            raise ValueError("the IMU-only model (use_video=False) has no frame encoder")
+        frames = jnp.asarray(frames)
+        lead = frames.shape[:-3] if self.config.rgb else frames.shape[:-2]
+        flat = frames.reshape((-1,) + frames.shape[len(lead):])
+        flat_valid = None if valid is None else jnp.asarray(valid).reshape(-1)
+        tokens = self.frame_encoder(flat, flat_valid, deterministic=deterministic)
+        return tokens.reshape(lead + (tokens.shape[-1],))
+
+    def predict_from_frame_tokens(self, frame_tokens, imu, mask, *,
+                                  deterministic: bool = True) -> jax.Array:
+        """Offsets ``(B, C)`` from frame tokens ``(B, n, d)`` (``None`` for the IMU-only
+        model), IMU ``(B, n, C)`` and ``mask (B, n)``."""
+        mask = jnp.asarray(mask, bool)
+        tokens = self.imu_reducer(jnp.asarray(imu), mask, deterministic=deterministic)
+        if self.config.use_video:
+            if frame_tokens is None:
+                raise ValueError("the video model needs frame tokens")
+            tokens = tokens + self.video_temporal(frame_tokens, mask,
+                                                  deterministic=deterministic)
+        return self.noise_predictor(tokens, mask, deterministic=deterministic)
+
+    def __call__(self, frames, imu, mask, *, deterministic: bool = True) -> jax.Array:
+        frame_tokens = None
+        if self.config.use_video:
+            frame_tokens = self.encode_frames(frames, mask, deterministic=deterministic)
+        return self.predict_from_frame_tokens(frame_tokens, imu, mask,
+                                              deterministic=deterministic)
+
+
+def build_model(config: ModelConfig) -> Calibrator:
+    """The :class:`Calibrator` of ``config``."""
+    return Calibrator(config)

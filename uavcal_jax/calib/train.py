@@ -1,0 +1,297 @@
+"""Pure training and evaluation steps of the calibrator; K seeds vmapped; data parallel.
+
+A batch is a dict of model inputs (:func:`uavcal_jax.calib.batch.model_batch`): ``frames``
+``(B, T, h, w)`` / ``(B, T, 3, h, w)`` (absent for the IMU-only model), *clean* ``imu``
+``(B, T, C)``, ``mask (B, T)`` bool, optionally ``weight (B,)`` (0 on padding windows of a
+last, short batch) and, for evaluation, the true ``offset (B, C)``.
+
+- :func:`train_step` ``(state, batch, key) -> (state, metrics)``: splits ``key`` into an
+  offset key and a dropout key, draws a new offset per window by the configured protocol
+  (:func:`uavcal_jax.calib.inject.training_offsets`, from the training statistics held in
+  the state), injects it, and takes one AdamW step on the eq. 18 loss.
+- :func:`eval_step` ``(state, batch) -> metrics``: injects ``batch["offset"]``, predicts in
+  deterministic mode, returns the loss terms, the metric sums of
+  :func:`uavcal_jax.calib.metrics.metric_sums` (add them over batches) and ``pred``.
+- K seeds: :func:`create_train_states` builds K independently initialised states stacked on
+  a leading axis (one key each) and :func:`train_step_seeds` / :func:`eval_step_seeds` step
+  all of them at once with ``jax.vmap`` (one batch, K keys: own dropout and offset streams).
+- Data parallel: :func:`data_parallel` jits the steps over a 1-D device mesh, the batch
+  split on its leading axis (``NamedSharding(mesh, P("batch"))``), state and keys
+  replicated; XLA inserts the gradient all-reduce. Random draws are partitionable
+  (``jax_threefry_partitionable``), so the sharded step draws the very same offsets and
+  dropout masks as the one-device step.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, NamedTuple
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from uavcal_jax.calib.config import CalibConfig, TrainConfig
+from uavcal_jax.calib.inject import ImuStats, imu_statistics, inject, training_offsets
+from uavcal_jax.calib.loss import calibration_loss
+from uavcal_jax.calib.metrics import metric_sums
+from uavcal_jax.calib.model import Calibrator
+
+__all__ = [
+    "CalibState",
+    "DataParallel",
+    "EarlyStopping",
+    "create_train_state",
+    "create_train_states",
+    "data_parallel",
+    "early_stopping_update",
+    "eval_step",
+    "eval_step_seeds",
+    "make_optimizer",
+    "train_step",
+    "train_step_seeds",
+]
+
+
+class CalibState(flax.struct.PyTreeNode):
+    """Everything a training run carries: ``step ()`` int32, ``params``, ``batch_stats``
+    (the RGB batch norm's running statistics; empty for gray), ``opt_state``, the training
+    set's ``imu_stats`` (drive the paper protocol) and the static ``config``."""
+
+    step: jax.Array
+    params: Any
+    batch_stats: Any
+    opt_state: Any
+    imu_stats: ImuStats
+    config: CalibConfig = flax.struct.field(pytree_node=False)
+
+    @property
+    def model(self) -> Calibrator:
+        return Calibrator(self.config.model)
+
+    def variables(self) -> dict:
+        """The Flax variables for ``Calibrator.apply``."""
+        return {"params": self.params, **({"batch_stats": self.batch_stats}
+                                          if self.batch_stats else {})}
+
+
+def _is_key_bias(path, _leaf) -> bool:
+    names = [getattr(k, "key", None) for k in path]
+    return len(names) >= 2 and names[-2:] == ["key", "bias"]
+
+
+def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
+    """AdamW (decoupled weight decay on every parameter, as PyTorch's ``AdamW``).
+
+    With ``config.freeze_key_bias`` the gradients of the attention *key* biases are zeroed
+    first: softmax is invariant to a shift shared by every key, so their exact gradient is
+    zero and what autodiff returns is rounding noise, which Adam's normalisation would turn
+    into steps of size ``learning_rate`` in random directions (they then only decay).
+    """
+    adamw = optax.adamw(config.learning_rate, b1=config.b1, b2=config.b2, eps=config.eps,
+                        weight_decay=config.weight_decay)
+    if not config.freeze_key_bias:
+        return adamw
+    mask = functools.partial(jax.tree_util.tree_map_with_path, _is_key_bias)
+    return optax.chain(optax.masked(optax.set_to_zero(), mask), adamw)
+
+
+def _inputs(config: CalibConfig, batch: dict):
+    return (batch.get("frames") if config.model.use_video else None, batch["imu"],
+            jnp.asarray(batch["mask"], bool))
+
+
+def _init(config: CalibConfig, key: jax.Array, sample: dict, stats: ImuStats) -> CalibState:
+    frames, imu, mask = _inputs(config, sample)
+    variables = Calibrator(config.model).init({"params": key}, frames, imu, mask)
+    params = variables["params"]
+    return CalibState(step=jnp.zeros((), jnp.int32), params=params,
+                      batch_stats=variables.get("batch_stats", {}),
+                      opt_state=make_optimizer(config.train).init(params),
+                      imu_stats=ImuStats(*(jnp.asarray(s, jnp.float32) for s in stats)),
+                      config=config)
+
+
+_init_one = jax.jit(_init, static_argnums=0)
+
+
+def _first_window(batch: dict) -> dict:
+    return {k: np.asarray(v)[:1] for k, v in batch.items()}
+
+
+def _stats(sample_batch: dict, imu_stats: ImuStats | None) -> ImuStats:
+    if imu_stats is not None:
+        return imu_stats
+    return imu_statistics(np.asarray(sample_batch["imu"]), np.asarray(sample_batch["mask"]))
+
+
+def create_train_state(config: CalibConfig, key: jax.Array, sample_batch: dict,
+                       imu_stats: ImuStats | None = None) -> CalibState:
+    """A freshly initialised state. ``sample_batch`` fixes the shapes (its first window is
+    used: frame size, frames per window when ``max_frames`` is None); ``imu_stats`` are the
+    training set's (:func:`uavcal_jax.calib.inject.imu_statistics`), by default those of
+    ``sample_batch``'s clean IMU."""
+    stats = _stats(sample_batch, imu_stats)
+    return _init_one(config, key, _first_window(sample_batch), stats)
+
+
+def create_train_states(config: CalibConfig, keys: jax.Array, sample_batch: dict,
+                        imu_stats: ImuStats | None = None) -> CalibState:
+    """K states (``keys (K,)``, one per seed) stacked on a leading axis; state ``k`` equals
+    ``create_train_state(config, keys[k], ...)``. The inits run one by one through the same
+    compiled function (an init runs once per run; a vmapped one would cost its own
+    compile), the steps then run vmapped."""
+    stats = _stats(sample_batch, imu_stats)
+    first = _first_window(sample_batch)
+    states = [_init_one(config, k, first, stats) for k in keys]
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *states)
+
+
+def _weight(batch: dict, size: int) -> jax.Array:
+    w = batch.get("weight")
+    return jnp.ones(size, jnp.float32) if w is None else jnp.asarray(w, jnp.float32)
+
+
+def _apply(state: CalibState, params, frames, imu, mask, *, train: bool, key=None):
+    """Predictions ``(B, C)`` and the new batch statistics."""
+    model = state.model
+    variables = state.replace(params=params).variables()
+    if not train:
+        return model.apply(variables, frames, imu, mask), state.batch_stats
+    rngs = {"dropout": key}
+    if state.batch_stats:
+        pred, updates = model.apply(variables, frames, imu, mask, deterministic=False,
+                                    rngs=rngs, mutable=["batch_stats"])
+        return pred, updates["batch_stats"]
+    return model.apply(variables, frames, imu, mask, deterministic=False, rngs=rngs), {}
+
+
+def _train_step(state: CalibState, batch: dict, key: jax.Array):
+    config = state.config
+    frames, clean, mask = _inputs(config, batch)
+    weight = _weight(batch, clean.shape[0])
+    k_offset, k_dropout = jax.random.split(key)
+    offsets = training_offsets(k_offset, config.injection, state.imu_stats, clean.shape[0])
+    imu = inject(clean, offsets, mask)
+
+    def loss_fn(params):
+        pred, stats = _apply(state, params, frames, imu, mask, train=True, key=k_dropout)
+        loss, terms = calibration_loss(pred, offsets, config.loss, weight)
+        return loss, (terms, stats, pred)
+
+    (loss, (terms, batch_stats, pred)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
+        state.params)
+    updates, opt_state = make_optimizer(config.train).update(grads, state.opt_state,
+                                                             state.params)
+    state = state.replace(step=state.step + 1, params=optax.apply_updates(state.params, updates),
+                          batch_stats=batch_stats, opt_state=opt_state)
+    err = jnp.sum(weight[:, None] * jnp.square(pred - offsets))
+    metrics = {"loss": loss, **terms, "grad_norm": optax.tree.norm(grads),
+               "offset_rmse": jnp.sqrt(err / jnp.maximum(jnp.sum(weight) * pred.shape[1], 1))}
+    return state, metrics
+
+
+def _eval_step(state: CalibState, batch: dict):
+    config = state.config
+    frames, clean, mask = _inputs(config, batch)
+    weight = _weight(batch, clean.shape[0])
+    offsets = jnp.asarray(batch["offset"], jnp.float32)
+    pred, _ = _apply(state, state.params, frames, inject(clean, offsets, mask), mask,
+                     train=False)
+    loss, terms = calibration_loss(pred, offsets, config.loss, weight)
+    return {"loss": loss, **terms, "sums": metric_sums(pred, offsets, weight), "pred": pred}
+
+
+@jax.jit
+def train_step(state: CalibState, batch: dict, key: jax.Array):
+    """``(state, batch, key) -> (state, metrics)``: one AdamW step (see the module
+    docstring); ``metrics`` scalars: ``loss``, ``offset``, ``sign``, ``magnitude``,
+    ``sign_exact``, ``grad_norm`` and ``offset_rmse`` (on the injected offsets)."""
+    return _train_step(state, batch, key)
+
+
+@jax.jit
+def eval_step(state: CalibState, batch: dict):
+    """``(state, batch) -> metrics``: deterministic predictions ``pred (B, C)`` with
+    ``batch["offset"]`` injected into the clean IMU, the loss terms and metric ``sums``."""
+    return _eval_step(state, batch)
+
+
+_train_seeds = jax.vmap(_train_step, in_axes=(0, None, 0))
+_eval_seeds = jax.vmap(_eval_step, in_axes=(0, None))
+
+
+@jax.jit
+def train_step_seeds(states: CalibState, batch: dict, keys: jax.Array):
+    """``(states, batch, keys (K,)) -> (states, metrics)``: K stacked seeds on one batch,
+    each with its own key; every output has a leading ``K`` axis."""
+    return _train_seeds(states, batch, keys)
+
+
+@jax.jit
+def eval_step_seeds(states: CalibState, batch: dict):
+    """``(states, batch) -> metrics`` of K stacked states (leading ``K`` axis)."""
+    return _eval_seeds(states, batch)
+
+
+class DataParallel(NamedTuple):
+    """Steps jitted over a 1-D ``mesh`` (axis ``"batch"``): ``train_step``, ``eval_step``,
+    their K-seed forms, and placement helpers ``shard`` (a batch, split on axis 0; its size
+    must be a multiple of the device count) and ``replicate`` (a state or key)."""
+
+    mesh: Mesh
+    train_step: Any
+    eval_step: Any
+    train_step_seeds: Any
+    eval_step_seeds: Any
+    shard: Any
+    replicate: Any
+
+
+def data_parallel(devices=None) -> DataParallel:
+    """Data-parallel steps over ``devices`` (default: all of the default backend)."""
+    devices = list(jax.devices() if devices is None else devices)
+    mesh = Mesh(np.array(devices), ("batch",))
+    split = NamedSharding(mesh, PartitionSpec("batch"))
+    whole = NamedSharding(mesh, PartitionSpec())
+
+    def shard(batch: dict) -> dict:
+        for k, v in batch.items():
+            if np.shape(v)[0] % len(devices):
+                raise ValueError(f"batch[{k!r}] has {np.shape(v)[0]} rows, not a multiple of "
+                                 f"the {len(devices)} devices")
+        return jax.device_put(batch, split)
+
+    def replicate(tree):
+        return jax.device_put(tree, whole)
+
+    # Inputs carry their placement (shard / replicate); the updated state is pinned
+    # replicated so that a sharded step's output feeds the next step unchanged.
+    steps = {
+        "train_step": jax.jit(_train_step, out_shardings=(whole, whole)),
+        "eval_step": jax.jit(_eval_step),
+        "train_step_seeds": jax.jit(_train_seeds, out_shardings=(whole, whole)),
+        "eval_step_seeds": jax.jit(_eval_seeds),
+    }
+    return DataParallel(mesh=mesh, shard=shard, replicate=replicate, **steps)
+
+
+class EarlyStopping(NamedTuple):
+    """Best loss so far, epochs since it improved, and the epoch it was reached."""
+
+    best: float = float("inf")
+    bad_epochs: int = 0
+    best_epoch: int = -1
+
+
+def early_stopping_update(es: EarlyStopping, loss: float, epoch: int,
+                          patience: int) -> tuple[EarlyStopping, bool]:
+    """Section 4.4: stop after ``patience`` epochs without an improvement of ``loss`` (the
+    training or the validation loss). Returns the new record and whether to stop."""
+    if loss < es.best:
+        return EarlyStopping(float(loss), 0, epoch), False
+    es = EarlyStopping(es.best, es.bad_epochs + 1, es.best_epoch)
+    return es, es.bad_epochs >= patience
