@@ -42,14 +42,15 @@ import jax.numpy as jnp
 
 from uavcal_jax.calib.config import ModelConfig
 from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encoder
+from uavcal_jax.data.color import LUMA_WEIGHTS
 
 __all__ = ["GRAY_WEIGHTS", "Calibrator", "build_model", "patchify"]
 
 F32 = jnp.float32
 
-# ITU-R BT.601 luma weights (as OpenCV's and torchvision's RGB-to-gray): the grayscale image
-# of eq. 1 that the colour-compression output is added to.
-GRAY_WEIGHTS = (0.299, 0.587, 0.114)
+# The grayscale image of eq. 1, that the colour-compression output is added to, is the
+# BT.601 luma of the frame, as the readers' and the renderer's gray frames are.
+GRAY_WEIGHTS = LUMA_WEIGHTS
 
 _embedding_init = nn.initializers.normal(stddev=0.02)
 

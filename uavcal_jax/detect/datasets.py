@@ -15,6 +15,7 @@ import hashlib
 import json
 from pathlib import Path
 
+from uavcal_jax.data.euroc_format import MAV0, TARGET_FOLDER
 from uavcal_jax.detect.config import TrainConfig
 from uavcal_jax.detect.readers import (
     find_coco_json,
@@ -43,7 +44,7 @@ def detect_format(path: str | Path) -> str:
         raise DataError("not a data set folder or COCO json", path)
     if (path / "Annotations").is_dir() and (path / "JPEGImages").is_dir():
         return "voc"
-    if (path / "mav0" / "target0").is_dir() or (path / "target0").is_dir():
+    if (path / MAV0 / TARGET_FOLDER).is_dir() or (path / TARGET_FOLDER).is_dir():
         return "sim"
     if find_coco_json(path) is not None:
         return "coco"

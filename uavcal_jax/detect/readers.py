@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from uavcal_jax.data import read_euroc
+from uavcal_jax.data.euroc_format import DATA_CSV, MAV0, TARGET_FOLDER
 from uavcal_jax.detect.records import (
     DetectionDataset,
     DetectionRecord,
@@ -349,13 +350,13 @@ def read_sim_targets(root: str | Path, camera: str = "cam0", *, stride: int = 1,
     """
     root = require_dir(root)
     sequence = read_euroc(root)
-    mav0 = root / "mav0" if (root / "mav0").is_dir() else root
+    mav0 = root / MAV0 if (root / MAV0).is_dir() else root
     if sequence.targets is None:
-        raise DataError("no target labels (target0 folder)", mav0 / "target0")
+        raise DataError(f"no target labels ({TARGET_FOLDER} folder)", mav0 / TARGET_FOLDER)
     stream = sequence.camera(camera)
     frames = range(0, len(stream), max(1, int(stride)))
     if not frames:
-        raise DataError("no frames listed", mav0 / camera / "data.csv")
+        raise DataError("no frames listed", mav0 / camera / DATA_CSV)
     paths = [stream.paths[i] for i in frames]
     sizes = image_sizes(paths, check_images)
     problems = Problems(mav0)

@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from uavcal_jax.data.color import LUMA_WEIGHTS
 from uavcal_jax.geometry import camera as camera_model
 from uavcal_jax.sim.config import COLORS
 from uavcal_jax.sim.scene import Scene, box_arrays
@@ -42,7 +43,6 @@ __all__ = [
     "target_boxes",
 ]
 
-_LUMA = (0.299, 0.587, 0.114)
 #: Pixels per tile (rows, cols): boxes are culled per tile.
 DEFAULT_TILE: tuple[int, int] = (48, 64)
 SHADE_CHUNKS = 4
@@ -197,7 +197,7 @@ def _frame_constants(scene: Scene, p_WC, t, color: str):
     shade = (lw[0] + jnp.einsum("kasl,l->kas", lambert, lw[1:])).reshape(-1)  # (F,)
     colors = scene.face_color.astype(f32) * (shade / 255.0)[:, None, None]  # (F, 2, 3)
     if color == "gray":
-        colors = colors @ jnp.asarray(_LUMA, f32)[:, None]  # (F, 2, 1)
+        colors = colors @ jnp.asarray(LUMA_WEIGHTS, f32)[:, None]  # (F, 2, 1)
     ft = scene.face_tex.astype(f32)
     faces = {
         "off": ft[:, 0].astype(jnp.int32),
