@@ -10,6 +10,7 @@ import warnings
 from pathlib import Path
 
 import cv2
+import jax
 import numpy as np
 import pytest
 from conftest import shared_path
@@ -34,6 +35,7 @@ from uavcal_jax.data.targets import TargetLabels
 from uavcal_jax.data.tum import read_tum
 from uavcal_jax.errors import DataError, DataRepairWarning
 from uavcal_jax.imu.noise import ImuNoise
+from uavcal_jax.imu.offset import remove_offset
 from uavcal_jax.sim.config import (
     SimConfig,
     camera_calibrations,
@@ -347,6 +349,44 @@ def test_no_frames_and_exact_imu(tmp_path):
     np.testing.assert_array_equal(seq.imu.accel, exact.imu.accel)
     np.testing.assert_array_equal(seq.ground_truth.bias_gyro, 0.0)
     np.testing.assert_array_equal(seq.ground_truth.bias_accel, 0.0)
+
+
+def test_imu_offset_is_an_extra_constant_error(tmp_path):
+    """The offset rides on top of the noisy IMU: the ground truth (and its true biases) is that
+    of the run without it, and removing the recorded offset gives that run's IMU back."""
+    offset = (0.03, -0.05, 0.01, -0.3, 0.2, 0.12)
+    clean_cfg = SimConfig(duration=2.0, seed=6, frames=False)
+    simulate(clean_cfg, tmp_path / "clean", progress=False)
+    simulate(dataclasses.replace(clean_cfg, imu_offset=offset), tmp_path / "miscal",
+             progress=False)
+    clean, miscal = _read_strict(tmp_path / "clean"), _read_strict(tmp_path / "miscal")
+    recorded = json.loads((tmp_path / "miscal" / "sim_config.json").read_text())
+    assert recorded["config"]["imu_offset"] == list(offset)
+    np.testing.assert_array_equal(miscal.imu.t_ns, clean.imu.t_ns)
+    for name in ("position", "quaternion", "velocity", "bias_gyro", "bias_accel"):
+        np.testing.assert_array_equal(getattr(miscal.ground_truth, name),
+                                      getattr(clean.ground_truth, name), err_msg=name)
+    assert np.abs(clean.ground_truth.bias_accel).max() > 1e-3  # noise and biases are there
+    np.testing.assert_allclose(miscal.imu.gyro - clean.imu.gyro,
+                               np.broadcast_to(offset[:3], clean.imu.gyro.shape), atol=1e-14)
+    np.testing.assert_allclose(miscal.imu.accel - clean.imu.accel,
+                               np.broadcast_to(offset[3:], clean.imu.accel.shape), atol=1e-13)
+    with jax.enable_x64(True):
+        gyro, accel = remove_offset(miscal.imu.gyro, miscal.imu.accel,
+                                    np.asarray(recorded["config"]["imu_offset"]))
+    np.testing.assert_allclose(np.asarray(gyro), clean.imu.gyro, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(accel), clean.imu.accel, rtol=0, atol=1e-13)
+    assert "offset" in (tmp_path / "miscal" / "mav0" / "imu0" / "sensor.yaml").read_text()
+
+
+@pytest.mark.parametrize("bad", [(0.1,) * 5, (0.1,) * 7, (0, 0, float("nan"), 0, 0, 0),
+                                 (0, 0, 0, float("inf"), 0, 0)])
+def test_imu_offset_is_validated(bad):
+    with pytest.raises(ValueError, match="imu_offset"):
+        SimConfig(imu_offset=bad).validate()
+    with pytest.raises(ValueError):
+        SimConfig(imu_offset=("a", 0, 0, 0, 0, 0))
+    assert SimConfig(imu_offset=np.arange(6)).imu_offset == (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)
 
 
 def test_procedural_imu_is_mounted_like_euroc(tmp_path):

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["fraction", "parse_imgsz", "parse_resolution", "positive", "positive_int",
-           "print_json"]
+__all__ = ["fraction", "parse_imgsz", "parse_offset", "parse_resolution", "positive",
+           "positive_int", "print_json"]
 
 
 def parse_resolution(text: str) -> tuple[int, int]:
@@ -40,6 +40,25 @@ def parse_imgsz(text: str) -> tuple[int, int]:
     if w % 32 or h % 32 or w < 32 or h < 32:
         raise argparse.ArgumentTypeError(f"image size must be multiples of 32, got {text!r}")
     return h, w
+
+
+def parse_offset(text: str) -> tuple[float, ...]:
+    """``"GX,GY,GZ,AX,AY,AZ"`` -> an IMU offset, 6 finite floats (gyro rad/s xyz, accel m/s^2
+    xyz, the order of :mod:`uavcal_jax.imu.offset`). A first value below zero needs the
+    ``--option=-0.01,...`` form (argparse takes a lone ``-0.01,...`` for an option)."""
+    parts = text.split(",")
+    try:
+        values = tuple(float(v) for v in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected 6 comma-separated numbers GX,GY,GZ,AX,AY,AZ, got {text!r}") from None
+    if len(values) != 6:
+        raise argparse.ArgumentTypeError(
+            f"expected 6 comma-separated numbers GX,GY,GZ,AX,AY,AZ, got {len(values)} in "
+            f"{text!r}")
+    if not np.all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"offset values must be finite, got {text!r}")
+    return values
 
 
 def positive(text: str) -> float:

@@ -6,7 +6,13 @@ import argparse
 import time
 from pathlib import Path
 
-from uavcal_jax.argtypes import parse_resolution, positive, positive_int, print_json
+from uavcal_jax.argtypes import (
+    parse_offset,
+    parse_resolution,
+    positive,
+    positive_int,
+    print_json,
+)
 from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.data.euroc_rig import EUROC_RESOLUTION
 from uavcal_jax.errors import DataError
@@ -35,7 +41,8 @@ EPILOG = """\
 examples:
   uavcal simulate --out out/sim --duration 20 --seed 3
   uavcal simulate --out out/v101 --trajectory V1_01_easy.txt --start 10 --duration 30
-  uavcal simulate --out out/imu_only --no-frames --no-imu-noise --duration 60"""
+  uavcal simulate --out out/imu_only --no-frames --no-imu-noise --duration 60
+  uavcal simulate --out out/miscal --imu-offset=-0.02,0.01,0.03,0.2,-0.1,0.15"""
 
 
 def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,6 +80,13 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
                    help="exact IMU: no white noise, no bias (default: EuRoC ADIS16448 noise "
                         "densities, bias random walks and turn-on biases; the true biases are "
                         "in the ground truth)")
+    g.add_argument("--imu-offset", type=parse_offset, default=_D.imu_offset,
+                   metavar="GX,GY,GZ,AX,AY,AZ",
+                   help="add this constant offset (gyro rad/s xyz, accel m/s^2 xyz) to the "
+                        "written IMU after its noise and biases: a miscalibrated recording. "
+                        "It is recorded in sim_config.json; the ground truth's biases stay the "
+                        "IMU's true ones. Write --imu-offset=-0.02,... when the first value is "
+                        "negative [default: none]")
     g.add_argument("--no-frames", dest="frames", action="store_false", default=_D.frames,
                    help="write only the IMU and the ground truth (no cameras, depth, labels)")
     g.add_argument("--no-depth", dest="depth", action="store_false", default=_D.depth,
@@ -119,6 +133,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         color=args.color,
         seed=int(args.seed),
         imu_noise=args.imu_noise,
+        imu_offset=args.imu_offset,
         frames=args.frames,
         depth=args.depth,
         targets=args.targets,
@@ -165,12 +180,15 @@ def run(args: argparse.Namespace) -> int:
     summary = {"out": str(report.root), "seconds": round(seconds, 3), **counts,
                "t_start_ns": report.resolved["flight"]["t_start_ns"],
                "t_end_ns": report.resolved["flight"]["t_end_ns"],
+               "imu_offset": report.resolved["config"]["imu_offset"],
                "timings": {k: round(v, 3) for k, v in report.timings.items()}}
     if args.json:
         print_json(summary)
     else:
         frames = f", {counts['frames']} stereo pairs" if "frames" in counts else ""
         labels = f", {counts['target_rows']} target labels" if counts.get("target_rows") else ""
-        print(f"wrote {report.root}: {counts['imu']} IMU samples{frames}{labels} "
+        offset = ("" if config.imu_offset is None else
+                  " (IMU offset " + ",".join(f"{v:g}" for v in config.imu_offset) + ")")
+        print(f"wrote {report.root}: {counts['imu']} IMU samples{offset}{frames}{labels} "
               f"in {seconds:.1f} s")
     return 0

@@ -1,7 +1,8 @@
 """What a simulated recording is: :class:`SimConfig`, and the calibration and seeds it implies.
 
 A :class:`SimConfig` holds every choice that changes the output (flight, duration, frame size,
-colour, rates, the camera's exposure, gain, noise and motion blur, seed, which streams) and two
+colour, rates, the camera's exposure, gain, noise and motion blur, seed, which streams, an
+optional constant IMU offset) and two
 that only change the speed (render batch, PNG threads). Its field defaults are the defaults of
 ``uavcal simulate`` and of the benchmarks, which read them from here.
 :func:`camera_calibrations` and :func:`stage_seeds` resolve a configuration into EuRoC's two
@@ -58,6 +59,11 @@ class SimConfig:
         imu_noise: add EuRoC's ADIS16448 noise, bias random walk and turn-on biases; when false
             the IMU is exact (biases zero). ``imu0/sensor.yaml`` states EuRoC's noise model in
             both cases.
+        imu_offset: ``None`` (no offset) or 6 finite numbers, gyro rad/s xyz then accel m/s^2
+            xyz: a constant error added (:func:`uavcal_jax.imu.offset.add_offset`) to the
+            written IMU after its noise and biases, i.e. a miscalibrated sensor. The ground
+            truth's bias columns stay the IMU's true biases (without the offset), so
+            ``remove_offset`` with this value gives back the recording without it.
         frames: render and write cam0/cam1 (and depth, targets); false writes only the IMU and
             the ground truth.
         depth: write depth0/depth1 with the frames.
@@ -86,6 +92,7 @@ class SimConfig:
     color: str = COLORS[0]
     seed: int = 0
     imu_noise: bool = True
+    imu_offset: tuple[float, ...] | None = None
     frames: bool = True
     depth: bool = True
     targets: bool = True
@@ -105,6 +112,10 @@ class SimConfig:
             object.__setattr__(self, name, float(getattr(self, name)))
         if self.trajectory is not None:
             object.__setattr__(self, "trajectory", os.fspath(self.trajectory))
+        if self.imu_offset is not None:
+            # a tuple of floats whatever sequence was given (hashable, JSON-ready, and equal
+            # to the parsed command-line value); the count is checked by validate()
+            object.__setattr__(self, "imu_offset", tuple(float(v) for v in self.imu_offset))
 
     def validate(self) -> None:
         """Raise ``ValueError`` for values out of range (the file is checked by simulate)."""
@@ -129,6 +140,10 @@ class SimConfig:
             raise ValueError(f"gain must be positive, got {self.gain}")
         if self.blur_samples < 1:
             raise ValueError(f"blur_samples must be >= 1, got {self.blur_samples}")
+        if self.imu_offset is not None and not (
+                len(self.imu_offset) == 6 and np.all(np.isfinite(self.imu_offset))):
+            raise ValueError("imu_offset must be 6 finite numbers (gyro rad/s xyz, accel m/s^2 "
+                             f"xyz), got {self.imu_offset}")
         if self.batch_size < 1 or self.png_workers < 1:
             raise ValueError("batch_size and png_workers must be >= 1")
 
@@ -136,6 +151,7 @@ class SimConfig:
         """The fields as JSON-ready values (``sim_config.json``'s ``config``)."""
         d = dataclasses.asdict(self)
         d["resolution"] = list(self.resolution)
+        d["imu_offset"] = None if self.imu_offset is None else list(self.imu_offset)
         return d
 
 

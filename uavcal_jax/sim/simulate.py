@@ -20,6 +20,12 @@ procedural flight (a quadrotor frame, z up) gets EuRoC's IMU mounting (:func:`mo
 x up, z forward and 20 degrees down), so EuRoC's camera extrinsics look ahead and the IMU
 reads gravity on x as EuRoC's does.
 
+IMU offset. ``SimConfig.imu_offset`` makes a miscalibrated recording: the offset is added
+(:func:`uavcal_jax.imu.offset.add_offset`) to the samples written to ``imu0/data.csv`` after
+their noise and biases are drawn, so the noise streams are those of the same run without it and
+the ground truth's bias columns stay the IMU's true biases; the offset itself is recorded in
+``sim_config.json`` (``config.imu_offset``).
+
 Frames. Both EuRoC cameras (cam0, cam1: intrinsics, radial-tangential distortion and
 ``T_BS`` of the real VI-sensor) are rendered; another resolution scales the intrinsics (same
 field of view).
@@ -40,6 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 from scipy.interpolate import BSpline
 from scipy.spatial.transform import Rotation
@@ -48,10 +55,11 @@ from uavcal_jax import __version__
 from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.data.euroc_rig import euroc_imu_mounting
 from uavcal_jax.data.euroc_writer import EurocWriter
-from uavcal_jax.data.sequence import GroundTruth, ImuCalibration
+from uavcal_jax.data.sequence import GroundTruth, ImuCalibration, ImuData
 from uavcal_jax.data.tum import read_tum
 from uavcal_jax.errors import DataError
 from uavcal_jax.imu.noise import EUROC_ADIS16448
+from uavcal_jax.imu.offset import add_offset
 from uavcal_jax.sim import imu_synth
 from uavcal_jax.sim.config import SimConfig, camera_calibrations, stage_seeds
 from uavcal_jax.sim.flights import procedural_flight
@@ -141,6 +149,18 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
                 "file_last_t_ns": last_ns, "start_s_after_first": float(config.start)}
     t_ns = t0_ns + period_ns * np.arange(n, dtype=np.int64)
     return traj, t_ns, info
+
+
+def _with_offset(imu: ImuData, offset: tuple[float, ...] | None) -> ImuData:
+    """``imu`` as read by a sensor with the constant ``offset`` (6,) (gyro rad/s, accel
+    m/s^2; ``None``: unchanged), in float64."""
+    if offset is None:
+        return imu
+    # 64-bit JAX: the default 32-bit arrays would round the written samples to ~1e-6 m/s^2
+    with jax.enable_x64(True):
+        gyro, accel = add_offset(imu.gyro, imu.accel, np.asarray(offset, dtype=np.float64))
+        gyro, accel = np.asarray(gyro, np.float64), np.asarray(accel, np.float64)
+    return dataclasses.replace(imu, gyro=gyro, accel=accel)
 
 
 def mount_imu(traj: Trajectory, R_QB: np.ndarray) -> Trajectory:
@@ -245,6 +265,7 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
     synth = imu_synth.synthesize_imu(traj, rate_hz=config.imu_rate_hz, noise=noise,
                                      seed=seeds["imu"], t_ns=imu_t_ns, turn_on=turn_on)
     imu = synth.imu
+    # the ground truth keeps the true biases: the offset is an extra error of the written IMU
     gt: GroundTruth = imu_synth.ground_truth_from_trajectory(
         traj, imu.t_ns, bias_gyro=synth.bias_gyro, bias_accel=synth.bias_accel)
     timings["trajectory_imu"] = time.perf_counter() - t_begin
@@ -263,9 +284,8 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
 
     t_write = time.perf_counter()
     with EurocWriter(root, workers=config.png_workers) as writer:
-        writer.write_imu(imu, imu_calib, comment="uavcal-jax simulated IMU (EuRoC ADIS16448 "
-                         "noise model)" if config.imu_noise else "uavcal-jax simulated IMU "
-                         "(exact, no noise)")
+        writer.write_imu(_with_offset(imu, config.imu_offset), imu_calib,
+                         comment=_imu_comment(config))
         writer.write_ground_truth(gt)
         write_s = time.perf_counter() - t_write
 
@@ -284,6 +304,15 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
     timings["encode"] = writer.encode_seconds
     timings["total"] = time.perf_counter() - t_begin
     return SimReport(root=root, resolved=resolved, timings=timings)
+
+
+def _imu_comment(config: SimConfig) -> str:
+    """``imu0/sensor.yaml``'s comment: how the samples were made."""
+    text = ("uavcal-jax simulated IMU (EuRoC ADIS16448 noise model)" if config.imu_noise
+            else "uavcal-jax simulated IMU (exact, no noise)")
+    if config.imu_offset is not None:
+        text += f" plus a constant offset (imu_offset in {SIM_CONFIG_FILE})"
+    return text
 
 
 def _calib_dict(calib) -> dict[str, Any]:
