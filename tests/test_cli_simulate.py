@@ -208,7 +208,7 @@ def test_demo_json_keep(capsys, tmp_path):
     code, out, err = _run(capsys, "demo", "--json", "--keep", str(keep))
     assert code == 0, err
     result = json.loads(out.strip().splitlines()[-1])
-    assert [k for k in result if k != "seconds"] == ["simulate", "read"]
+    assert [k for k in result if k != "seconds"] == ["simulate", "read", "calibrate"]
     summary = result["read"]
     assert set(summary["cameras"]) == {"cam0", "cam1"}
     assert set(summary["depth"]) == {"depth0", "depth1"}
@@ -218,6 +218,14 @@ def test_demo_json_keep(capsys, tmp_path):
     assert summary["warnings"] == []
     assert (keep / "mav0" / "cam0" / "data.csv").is_file()
     assert (keep / "sim_config.json").is_file()
+    # The calibrate step recovers the offset written into the IMU (sim_config.json records
+    # it) to within the noise of 3 s of ADIS16448 samples.
+    calib = result["calibrate"]
+    recorded = json.loads((keep / "sim_config.json").read_text())["config"]["imu_offset"]
+    np.testing.assert_allclose(calib["true"], recorded)
+    assert any(abs(v) > 0 for v in recorded)
+    np.testing.assert_allclose(calib["estimated"][:3], recorded[:3], atol=2e-3)  # rad/s
+    np.testing.assert_allclose(calib["estimated"][3:], recorded[3:], atol=2e-2)  # m/s^2
 
 
 def test_rgb_frames_small_resolution(capsys, tmp_path):
