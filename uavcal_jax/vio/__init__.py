@@ -1,0 +1,105 @@
+"""Stereo visual-inertial odometry (RPEOD sec. 3.1-3.3; VINS-Fusion's design).
+
+Modules, one job each. Front end (OpenCV, NumPy):
+
+* :mod:`~uavcal_jax.vio.frontend` and :mod:`~uavcal_jax.vio.frontend_config`: Shi-Tomasi
+  corners, pyramidal Lucas-Kanade with a forward-backward check, outlier rejection on
+  undistorted points, left-to-right stereo matches.
+* :mod:`~uavcal_jax.vio.keyframes`: the keyframe decision on gyro-compensated parallax.
+
+Back end (JAX, pure functions):
+
+* :mod:`~uavcal_jax.vio.window`: the sliding-window pytrees (fixed capacities, masks) and the
+  retraction ``x ⊞ delta``.
+* :mod:`~uavcal_jax.vio.config`: :class:`CostConfig`, :class:`SolverConfig`.
+* :mod:`~uavcal_jax.vio.robust`: Huber / Cauchy functions of the squared residual.
+* :mod:`~uavcal_jax.vio.residuals`: reprojection, IMU and prior residuals; ``window_cost``.
+* :mod:`~uavcal_jax.vio.normal`: the structured normal equations and their Schur solve.
+* :mod:`~uavcal_jax.vio.solver`: the :class:`Solver` interface and the structured
+  Levenberg-Marquardt; :mod:`~uavcal_jax.vio.reference`: jaxopt behind the same interface.
+* :mod:`~uavcal_jax.vio.implicit`: gradients of the solution by implicit differentiation.
+* :mod:`~uavcal_jax.vio.synthetic`: an exactly consistent synthetic window.
+
+Evaluation: :mod:`~uavcal_jax.vio.trajectory_metrics` (ATE and RPE with evo's alignment,
+trajectory plots).
+
+Everything is float64 under ``jax.enable_x64(True)``.
+"""
+
+from uavcal_jax.vio.config import CostConfig, SolverConfig
+from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures
+from uavcal_jax.vio.frontend_config import FrontendConfig, KeyframeConfig
+from uavcal_jax.vio.implicit import solve_differentiable
+from uavcal_jax.vio.keyframes import KeyframeDecision, body_to_camera_rotation, keyframe_decision
+from uavcal_jax.vio.normal import NormalEquations, normal_equations
+from uavcal_jax.vio.reference import JaxoptSolver
+from uavcal_jax.vio.residuals import (
+    factor_residuals,
+    flat_residual,
+    stacked_residuals,
+    window_cost,
+)
+from uavcal_jax.vio.solver import (
+    SolveInfo,
+    Solver,
+    StructuredSolver,
+    gauss_newton_step,
+    structured_solve,
+)
+from uavcal_jax.vio.trajectory_metrics import AteResult, RpeResult, ate, plot_trajectories, rpe
+from uavcal_jax.vio.window import (
+    DEFAULT_KEYFRAMES,
+    CalibParams,
+    ImuFactors,
+    Keyframes,
+    Landmarks,
+    Observations,
+    Prior,
+    WindowProblem,
+    WindowState,
+    frame_difference,
+    prior_from_information,
+    retract,
+)
+
+__all__ = [
+    "AteResult",
+    "DEFAULT_KEYFRAMES",
+    "FeatureTracker",
+    "FrameFeatures",
+    "FrontendConfig",
+    "KeyframeConfig",
+    "KeyframeDecision",
+    "RpeResult",
+    "ate",
+    "body_to_camera_rotation",
+    "keyframe_decision",
+    "plot_trajectories",
+    "rpe",
+    "CalibParams",
+    "CostConfig",
+    "ImuFactors",
+    "JaxoptSolver",
+    "Keyframes",
+    "Landmarks",
+    "NormalEquations",
+    "Observations",
+    "Prior",
+    "SolveInfo",
+    "Solver",
+    "SolverConfig",
+    "StructuredSolver",
+    "WindowProblem",
+    "WindowState",
+    "flat_residual",
+    "frame_difference",
+    "gauss_newton_step",
+    "normal_equations",
+    "prior_from_information",
+    "factor_residuals",
+    "retract",
+    "solve_differentiable",
+    "stacked_residuals",
+    "structured_solve",
+    "window_cost",
+]
