@@ -8,7 +8,6 @@ Every option's default and choices come from the configuration dataclasses and c
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 from uavcal_jax.argtypes import fraction, parse_imgsz, positive_int, print_json
 from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress
+from uavcal_jax.xla_cache import enable_compilation_cache
 
 DESCRIPTION = """\
 Train, evaluate and run the detector of RPEOD (YZNet backbone under a YOLOv5 v7.0 head;
@@ -196,26 +196,6 @@ def register(subparsers) -> None:
 # ----------------------------------------------------------------------------- helpers
 
 
-def _enable_compilation_cache() -> None:
-    """Reuse XLA compilations across invocations (train -> eval -> predict compile the same
-    functions). ``UAVCAL_JAX_CACHE`` chooses the folder; ``UAVCAL_JAX_CACHE=off`` disables."""
-    import jax
-
-    where = os.environ.get("UAVCAL_JAX_CACHE")
-    if where == "off" or jax.config.jax_compilation_cache_dir:
-        return  # disabled, or already set by the caller
-    if where is None:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"),
-                                                                  ".cache")
-        where = os.path.join(base, "uavcal_jax", "xla")
-    try:
-        os.makedirs(where, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", where)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-    except Exception:  # noqa: BLE001 - a cache is an optimisation only
-        pass
-
-
 def _log(enabled: bool):
     def log(line: str) -> None:
         if enabled:
@@ -271,7 +251,7 @@ def run_train(args) -> int:
     data = Path(args.data)
     if not data.exists():
         raise DataError("no such data folder", data)
-    _enable_compilation_cache()
+    enable_compilation_cache()
     t0 = time.perf_counter()
     dataset = load_dataset(data, args.format)
     if not len(dataset):
@@ -314,7 +294,7 @@ def run_eval(args) -> int:
     run = _require_run(args.run)
     if args.data is not None and not Path(args.data).exists():
         raise DataError("no such data folder", args.data)
-    _enable_compilation_cache()
+    enable_compilation_cache()
     out = evaluate_run(run, args.data, args.format, which=args.checkpoint,
                        batch_size=args.batch, interpolation="voc07" if args.voc07 else "coco101",
                        progress=_progress(not args.json), conf_thresh=args.conf,
@@ -346,7 +326,7 @@ def run_predict(args) -> int:
 
     run = _require_run(args.checkpoint)
     paths = collect_images(args.images)
-    _enable_compilation_cache()
+    enable_compilation_cache()
     t0 = time.perf_counter()
     loaded = load_run(run)
     predict_cfg = SERVE_PREDICT.replace(conf_thresh=args.conf, iou_thresh=args.iou,

@@ -1,0 +1,180 @@
+"""`uavcal calib train/eval` on two tiny simulated sequences: leave-one-out with 2 vmapped
+seeds gives 2 distinct models per trial and the mean/std over trials; a run stopped after one
+epoch and resumed ends at the uninterrupted run's parameters; eval reproduces the training
+run's validation metrics beside the mean-offset baseline; parser defaults are the
+dataclasses'; bad input (unknown --set key, short sequence, NaN IMU rows, black frames,
+another config on resume) is one line and exit 2, or a repair with a warning."""
+
+import argparse
+import json
+import shutil
+
+import cv2
+import jax
+import numpy as np
+import pytest
+
+from uavcal_jax.calib.config import PROTOCOLS, CalibConfig, InjectionConfig, TrainConfig
+from uavcal_jax.calib.data import load_windows
+from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig, restore_run
+from uavcal_jax.cli import build_parser, main
+from uavcal_jax.commands.calib import train_configs
+from uavcal_jax.data.windows import WindowConfig
+from uavcal_jax.errors import DataRepairWarning
+from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.simulate import simulate
+
+# the model of tests/test_calib_loop.py; 2 s windows of 8 frames of 64x36 at 4 Hz
+TINY = ["model.d_model=16", "model.layers=1", "model.heads=2", "model.patch=16,16",
+        "train.batch_size=4", "train.learning_rate=1e-3", "window.duration=2",
+        "window.size=64x36"]
+
+
+@pytest.fixture(scope="module")
+def seqs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("calib_cli") / "seqs"
+    for i in range(2):
+        simulate(SimConfig(duration=6, resolution=(64, 48), ideal_camera=True,
+                           camera_rate_hz=4, depth=False, targets=False, seed=10 + i),
+                 root / f"seq{i}", progress=False)
+    return root
+
+
+def _subparser(parser, *names):
+    for name in names:
+        (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        parser = sub.choices[name]
+    return parser
+
+
+def test_parser_defaults_are_the_dataclass_defaults():
+    expected = {
+        "train": {"protocol": (InjectionConfig().protocol, PROTOCOLS),
+                  "validation": (LoopConfig().validation, VALIDATIONS),
+                  "seeds": (TrainConfig().seeds, None), "epochs": (TrainConfig().epochs, None),
+                  "set": ([], None)},
+        "eval": {"data": (None, None)},
+    }
+    free = {"help", "data", "out", "run", "resume", "stop_after", "json", "func"}
+    parser = build_parser()
+    for action, wanted in expected.items():
+        options = {a.dest: a for a in _subparser(parser, "calib", action)._actions}
+        assert not set(options) - set(wanted) - free, action
+        for dest, (default, choices) in wanted.items():
+            assert options[dest].default == default, (action, dest)
+            assert (tuple(options[dest].choices) if options[dest].choices else None) == (
+                tuple(choices) if choices else None), (action, dest)
+    args = parser.parse_args(["calib", "train", "--data", "d", "--out", "o"])
+    assert train_configs(args) == (CalibConfig(), LoopConfig(), WindowConfig())
+
+
+def _one_line(capsys, *needles):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    for n in needles:
+        assert str(n) in err[0], err[0]
+
+
+@pytest.mark.parametrize("key", ["nope", "window.nope", "loop.nope", "model.nope"])
+def test_unknown_set_key_is_exit_2_naming_it(seqs, tmp_path, capsys, key):
+    argv = ["calib", "train", "--data", str(seqs), "--out", str(tmp_path), "--set", f"{key}=1"]
+    assert main(argv) == 2
+    _one_line(capsys, repr(key))
+    assert main([*argv[:-1], "model.d_model=abc"]) == 2
+    _one_line(capsys, "model.d_model")
+
+
+def _copy(seqs, tmp_path, name="seq0"):
+    dst = tmp_path / name
+    shutil.copytree(seqs / name, dst)
+    return dst
+
+
+def test_bad_sequences(seqs, tmp_path, capsys):
+    out = str(tmp_path / "run")
+    assert main(["calib", "train", "--data", str(seqs), "--out", out,
+                 "--set", "window.duration=20"]) == 2
+    _one_line(capsys, "too short", "seq0")
+    assert main(["calib", "train", "--data", str(tmp_path / "missing"), "--out", out]) == 2
+    _one_line(capsys, "missing")
+
+    window = WindowConfig(duration=2, size=(64, 36))
+    nan = _copy(seqs, tmp_path / "nan")
+    csv = nan / "mav0" / "imu0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    fields = lines[20].split(",")
+    lines[20] = ",".join([fields[0], "nan", *fields[2:]])
+    csv.write_text("\n".join(lines) + "\n")
+    with pytest.warns(DataRepairWarning, match="NaN"):
+        (part,) = load_windows([nan], window)
+    assert np.isfinite(part.windows.gyro).all()
+
+    black = _copy(seqs, tmp_path / "black")
+    pngs = sorted((black / "mav0" / "cam0" / "data").glob("*.png"), key=lambda p: int(p.stem))
+    for p in pngs[3:5]:
+        cv2.imwrite(str(p), np.zeros((48, 64), np.uint8))
+    with pytest.warns(DataRepairWarning, match="2 all-black frames"):
+        (part,) = load_windows([black], window)
+    (clean,) = load_windows([seqs / "seq0"], window)
+    assert part.windows.frame_mask.sum() == clean.windows.frame_mask.sum() - np.sum(
+        np.isin(clean.windows.frame_index, [3, 4]))
+    for p in pngs:
+        cv2.imwrite(str(p), np.zeros((48, 64), np.uint8))
+    assert main(["calib", "train", "--data", str(black), "--out", out]) == 2
+    _one_line(capsys, "black", black)
+
+
+def _train(seqs, out, *extra):
+    return main(["calib", "train", "--data", str(seqs), "--out", str(out), "--validation",
+                 "loo", "--seeds", "2", "--epochs", "2", "--set", *TINY, "--json", *extra])
+
+
+def _params(run_dir, seqs):
+    window = WindowConfig(duration=2, size=(64, 36))
+    state, seeds = restore_run(run_dir, load_windows([seqs / "seq0"], window), kind="last")
+    assert seeds == 2
+    return [np.asarray(x) for x in jax.tree.leaves(state.params)]
+
+
+def test_loo_two_seeds_resume_and_eval(seqs, tmp_path, capsys):
+    full = tmp_path / "full"
+    assert _train(seqs, full) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert [len(t["held_out"]) for t in summary["trials"]] == [1, 1]
+    assert summary["trials"][0]["held_out"] != summary["trials"][1]["held_out"]
+    for k in ("val_offset_rmse", "val_sign_f1", "baseline_offset_rmse"):
+        vals = summary["mean_std"][k]["values"]
+        assert summary["mean_std"][k]["mean"] == pytest.approx(np.mean(vals))
+        assert summary["mean_std"][k]["std"] == pytest.approx(np.std(vals))
+    # two distinct models in one run, per trial
+    params = _params(full / "trial_00", seqs)
+    assert all(p.shape[0] == 2 for p in params)
+    assert any(not np.allclose(p[0], p[1]) for p in params)
+
+    # killed after epoch 1 of every trial, then resumed
+    part = tmp_path / "part"
+    assert _train(seqs, part, "--stop-after", "1") == 0
+    capsys.readouterr()
+    assert _train(seqs, part, "--resume") == 0
+    capsys.readouterr()
+    for trial in ("trial_00", "trial_01"):
+        for a, b in zip(_params(full / trial, seqs), _params(part / trial, seqs), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+    # eval: the best model on each trial's validation windows, baseline beside it
+    assert main(["calib", "eval", str(full), "--json"]) == 0
+    ev = json.loads(capsys.readouterr().out)
+    for t, r in zip(ev["trials"], summary["trials"], strict=True):
+        rmse = np.mean([m["offset_rmse"] for m in t["metrics"]])
+        assert rmse == pytest.approx(r["best"]["val_offset_rmse"], rel=1e-5)
+        assert t["baseline_mean_offset"]["offset_rmse"] == pytest.approx(
+            r["best"]["baseline_offset_rmse"], rel=1e-5)
+        assert len(t["metrics"]) == 2
+    assert main(["calib", "eval", str(full), "--data", str(seqs / "seq1"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["trials"][0]["windows"] == 5
+
+    # resuming with another model is refused in one line naming the difference
+    assert _train(seqs, full, "--resume", "--set", "model.d_model=32") == 2
+    _one_line(capsys, "model.d_model", full / "trial_00")
+    assert main(["calib", "eval", str(tmp_path)]) == 2
+    _one_line(capsys, str(tmp_path))

@@ -1,0 +1,187 @@
+"""Sequences to windows to model batches for the calibrator's training loop and CLI.
+
+- :func:`find_sequences` / :func:`load_windows`: EuRoC folders (real or simulated, or a folder
+  of them) cut into :class:`~uavcal_jax.data.windows.WindowSet` s. Bad input: a sequence
+  shorter than one window is a :class:`~uavcal_jax.errors.DataError` (from ``make_windows``);
+  NaN/inf IMU rows are dropped by the EuRoC reader with a warning; **all-black frames** (every
+  pixel 0: a dead or covered camera) are treated as missing frames -- their slots are masked
+  like dropped frames (zero pixels and IMU values, ``mask`` false), with one
+  :class:`~uavcal_jax.errors.DataRepairWarning`; a sequence whose frames are all black is an
+  error.
+- :class:`Windows`: some windows of one set (``indices``); :func:`as_windows` normalises what
+  :func:`uavcal_jax.calib.loop.fit` is given (a WindowSet, a ``Windows`` or a list of them).
+- :func:`gather`: model inputs (:func:`uavcal_jax.calib.batch.model_batch`) of windows picked
+  by flat index over a list of ``Windows``, padded to a fixed batch with ``weight`` 0 rows so
+  that the last short batch does not cost a new compile.
+- Validation protocols: :func:`split_windows` (the fixed random split over windows),
+  :func:`leave_one_out` (one trial per sequence) and :func:`kfold_windows` (contiguous blocks
+  of windows, so overlapping neighbours mostly stay on one side).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from uavcal_jax.calib.batch import model_batch
+from uavcal_jax.calib.config import ModelConfig
+from uavcal_jax.calib.inject import ImuStats, imu_statistics
+from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.data.windows import WindowConfig, WindowSet, make_windows
+from uavcal_jax.errors import DataError, DataRepairWarning
+
+__all__ = ["Windows", "as_windows", "find_sequences", "gather", "kfold_windows",
+           "leave_one_out", "load_windows", "mask_black_frames", "split_windows",
+           "training_statistics"]
+
+
+class Windows(NamedTuple):
+    """Windows ``indices (n,)`` of ``windows``; ``source`` is the sequence folder (or name)."""
+
+    windows: WindowSet
+    indices: np.ndarray
+    source: str
+
+
+def as_windows(data) -> list[Windows]:
+    """A list of :class:`Windows` from a WindowSet, a Windows, or a sequence of either
+    (``None``: empty)."""
+    if data is None:
+        return []
+    if isinstance(data, WindowSet | Windows):
+        data = [data]
+    out = []
+    for d in data:
+        if isinstance(d, WindowSet):
+            d = Windows(d, np.arange(len(d)), d.name)
+        out.append(Windows(d.windows, np.asarray(d.indices, np.int64), d.source))
+    shapes = {(w.windows.frames_per_window,) + w.windows.frames.shape[1:] for w in out}
+    if len(shapes) > 1:
+        raise DataError(f"windows of different shapes (frames per window, frame size) cannot "
+                        f"share batches: {sorted(shapes)}; use one camera rate and size")
+    return out
+
+
+def find_sequences(dirs: Sequence[str | Path]) -> list[Path]:
+    """EuRoC sequence folders: each of ``dirs`` that holds ``mav0`` (or is one), else its
+    sub-folders that do, sorted by name."""
+    found: list[Path] = []
+    for d in map(Path, dirs):
+        if not d.is_dir():
+            raise DataError("no such folder", d)
+        if d.name == "mav0" or (d / "mav0").is_dir():
+            found.append(d)
+            continue
+        kids = sorted(p for p in d.iterdir() if p.is_dir() and (p / "mav0").is_dir())
+        if not kids:
+            raise DataError("neither a EuRoC sequence (mav0/) nor a folder of them", d)
+        found += kids
+    return found
+
+
+def mask_black_frames(ws: WindowSet, where: str | Path) -> WindowSet:
+    """``ws`` with all-black frames treated as missing (see the module docstring)."""
+    black = ws.frames.reshape(ws.frames.shape[0], -1).max(axis=1) == 0
+    if not black.any():
+        return ws
+    if black.all():
+        raise DataError(f"all {black.size} frames are black (every pixel 0)", where)
+    hit = ws.frame_mask & black[np.maximum(ws.frame_index, 0)]
+    warnings.warn(DataRepairWarning(f"{where}: {int(black.sum())} all-black frames treated as "
+                                    "missing (masked out of their windows)"), stacklevel=2)
+    return dataclasses.replace(ws, frame_mask=ws.frame_mask & ~hit,
+                               frame_index=np.where(hit, -1, ws.frame_index).astype(np.int32))
+
+
+def load_windows(dirs: Sequence[str | Path], config: WindowConfig) -> list[Windows]:
+    """Every window of every sequence found under ``dirs`` (:func:`find_sequences`)."""
+    out = []
+    for root in find_sequences(dirs):
+        ws = mask_black_frames(make_windows(read_euroc(root), config), root)
+        out.append(Windows(ws, np.arange(len(ws)), str(Path(root).absolute())))
+    return out
+
+
+def _locate(parts: list[Windows]) -> tuple[np.ndarray, np.ndarray]:
+    src = np.concatenate([np.full(len(p.indices), j) for j, p in enumerate(parts)])
+    loc = np.concatenate([p.indices for p in parts])
+    return src, loc
+
+
+def gather(parts: list[Windows], flat: np.ndarray, model: ModelConfig, sensor: str,
+           batch_size: int | None = None) -> dict:
+    """Model inputs of windows ``flat`` (indices into the concatenation of ``parts``), with
+    ``weight (B,)``: 1 for real windows, 0 for the copies of the first one that pad the batch
+    to ``batch_size``."""
+    src, loc = _locate(parts)
+    flat = np.asarray(flat, np.int64)
+    n = flat.size
+    pad = np.concatenate([flat, np.full(max(0, (batch_size or n) - n), flat[0])])
+    rows = [parts[src[i]].windows.batch([loc[i]]) for i in pad]
+    keys = ("frames", "mask", "gyro", "accel")
+    wb = {k: np.concatenate([r[k] for r in rows]) for k in keys}
+    out = model_batch(wb, model, sensor)
+    out["weight"] = (np.arange(pad.size) < n).astype(np.float32)
+    return out
+
+
+def training_statistics(parts: list[Windows], channels: int, sensor: str) -> ImuStats:
+    """Per-channel IMU mean/std over every sample inside the chosen windows (the paper
+    protocol's ``mu``, ``sigma``); 3 channels: those of ``sensor``."""
+    samples = []
+    for p in parts:
+        ws = p.windows
+        covered = np.zeros(ws.imu_t_ns.shape[0], bool)
+        for lo, hi in ws.imu_range[p.indices]:
+            covered[lo:hi] = True
+        imu = np.concatenate([ws.gyro[covered], ws.accel[covered]], axis=1)
+        if channels == 3:
+            imu = imu[:, :3] if sensor == "gyro" else imu[:, 3:]
+        samples.append(imu)
+    return imu_statistics(np.concatenate(samples))
+
+
+def _count(parts: list[Windows]) -> int:
+    return int(sum(len(p.indices) for p in parts))
+
+
+def _select(parts: list[Windows], flat: np.ndarray) -> list[Windows]:
+    """The windows ``flat`` (sorted) of ``parts``, grouped back by set."""
+    src, loc = _locate(parts)
+    flat = np.sort(np.asarray(flat, np.int64))
+    return [Windows(p.windows, loc[flat[src[flat] == j]], p.source)
+            for j, p in enumerate(parts) if np.any(src[flat] == j)]
+
+
+def split_windows(parts: list[Windows], val_fraction: float, seed: int
+                  ) -> list[tuple[list[Windows], list[Windows]]]:
+    """One trial: a fixed random ``val_fraction`` of all windows for validation (the
+    ablation's 80/20 split; overlapping windows share frames across it)."""
+    n = _count(parts)
+    n_val = int(round(val_fraction * n))
+    if n_val < 1 or n_val >= n:
+        raise DataError(f"a {val_fraction:g} validation split of {n} windows leaves a side "
+                        "empty; give more data or another fraction")
+    order = np.random.default_rng(seed).permutation(n)
+    return [(_select(parts, order[n_val:]), _select(parts, order[:n_val]))]
+
+
+def leave_one_out(parts: list[Windows]) -> list[tuple[list[Windows], list[Windows]]]:
+    """One trial per sequence: validate on it, train on the others."""
+    if len(parts) < 2:
+        raise DataError(f"leave-one-sequence-out needs at least 2 sequences, got {len(parts)}")
+    return [([q for j, q in enumerate(parts) if j != i], [p]) for i, p in enumerate(parts)]
+
+
+def kfold_windows(parts: list[Windows], folds: int) -> list[tuple[list[Windows], list[Windows]]]:
+    """``folds`` trials over contiguous blocks of the concatenated windows."""
+    n = _count(parts)
+    if not 2 <= folds <= n:
+        raise DataError(f"{folds}-fold validation needs 2 <= folds <= windows ({n})")
+    blocks = np.array_split(np.arange(n), folds)
+    return [(_select(parts, np.setdiff1d(np.arange(n), b)), _select(parts, b)) for b in blocks]

@@ -1,0 +1,362 @@
+"""The calibrator's training loop: epochs, K vmapped seeds, early stopping, checkpoints,
+exact resume. The numerics are the pure steps of :mod:`uavcal_jax.calib.train`; this module
+holds the side effects (run folder, checkpoints, progress).
+
+Randomness is explicit and derived from ``(train.seed, purpose, ...)`` only, so a resumed run
+draws what the uninterrupted one drew: the epoch's window order from ``(seed, epoch)``, the
+step key of seed ``k`` (offsets and dropout) from ``(seed, k, global step)``, the inits from
+``(seed, k)``, the validation set's one offset from ``seed``.
+
+Run folder ``run_dir``: ``config.json`` (the resolved :class:`CalibConfig`, the
+:class:`LoopConfig` and the window geometry), ``metrics.jsonl`` (one JSON row per epoch:
+training loss per seed and their mean, validation loss and eq. 19-23 metrics, time) and
+``checkpoints/{last,best}`` (:mod:`uavcal_jax.calib.checkpoint`). A checkpoint is written
+after each epoch's metrics row, so a resumed run first drops rows newer than its checkpoint.
+
+Early stopping (section 4.4): after ``train.patience`` epochs without improvement of the
+monitored loss (``LoopConfig.monitor``: the epoch's training loss, the paper, or the
+validation loss), the mean over seeds. ``best`` is the epoch of the lowest monitored loss.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from uavcal_jax.calib.baselines import mean_offset
+from uavcal_jax.calib.checkpoint import RunCheckpoints
+from uavcal_jax.calib.config import (
+    CalibConfig,
+    config_from_dict,
+    config_to_dict,
+    with_overrides,
+)
+from uavcal_jax.calib.data import Windows, as_windows, gather, training_statistics
+from uavcal_jax.calib.inject import ImuStats, training_offsets, validation_offsets
+from uavcal_jax.calib.metrics import calibration_metrics, metrics_from_sums
+from uavcal_jax.calib.train import (
+    CalibState,
+    EarlyStopping,
+    create_train_state,
+    create_train_states,
+    early_stopping_update,
+    eval_step,
+    eval_step_seeds,
+    train_step,
+    train_step_seeds,
+)
+from uavcal_jax.data.windows import WindowConfig
+from uavcal_jax.errors import DataError
+from uavcal_jax.progress import progress as progress_bar
+
+__all__ = ["MONITORS", "VALIDATIONS", "FitResult", "LoopConfig", "epoch_order", "evaluate",
+           "fit", "mean_offset_baseline", "read_run_config", "resolved_config", "restore_run"]
+
+MONITORS = ("train", "val")
+VALIDATIONS = ("split", "loo", "kfold")
+# Purposes folded into the base key (one stream each).
+_INIT, _STEP, _ORDER, _VAL, _BASELINE = range(5)
+#: Offsets drawn to estimate the training distribution's mean (the mean-offset baseline).
+BASELINE_DRAWS = 4096
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Run control around the steps (``--set loop.<field>=...`` on the CLI).
+
+    Attributes:
+        monitor: early stopping and best-model criterion: ``"train"`` (section 4.4: the
+            epoch's training loss) or ``"val"`` (validation loss).
+        keep: last checkpoints kept (plus the best).
+        validation: the CLI's protocol: ``"split"`` (fixed random split over windows),
+            ``"loo"`` (leave one sequence out), ``"kfold"`` (contiguous blocks of windows).
+        val_fraction: the split's validation share (0.2: the ablation's 80/20).
+        split_seed: seed of the split.
+        folds: ``k`` of k-fold.
+    """
+
+    monitor: str = "train"
+    keep: int = 2
+    validation: str = "split"
+    val_fraction: float = 0.2
+    split_seed: int = 0
+    folds: int = 5
+
+    def __post_init__(self) -> None:
+        if self.monitor not in MONITORS:
+            raise ValueError(f"monitor must be one of {MONITORS}, got {self.monitor!r}")
+        if self.validation not in VALIDATIONS:
+            raise ValueError(f"validation must be one of {VALIDATIONS}, "
+                             f"got {self.validation!r}")
+        if self.keep < 1 or self.folds < 2 or not 0.0 < self.val_fraction < 1.0:
+            raise ValueError("keep must be >= 1, folds >= 2 and val_fraction in (0, 1)")
+
+
+@dataclass
+class FitResult:
+    """``state``: the final :class:`CalibState` (stacked on a leading ``K`` axis when
+    ``seeds > 1``); ``summary``: a JSON-ready dict of the run."""
+
+    state: CalibState
+    summary: dict
+
+
+def resolved_config(config: CalibConfig, loop: LoopConfig, windows: list[Windows]) -> dict:
+    """What ``config.json`` records and a checkpoint must match to be restored."""
+    ws = windows[0].windows
+    window = {k: (list(v) if isinstance(v, tuple) else v)
+              for k, v in dataclasses.asdict(ws.config).items() if k != "workers"}
+    return {"calib": config_to_dict(config), "loop": dataclasses.asdict(loop),
+            "window": window, "frames_per_window": ws.frames_per_window,
+            "frame_shape": list(ws.frames.shape[1:])}
+
+
+def _root(config: CalibConfig) -> jax.Array:
+    return jax.random.key(config.train.seed)
+
+
+def _step_keys(root: jax.Array, seeds: int, step: int) -> jax.Array:
+    base = jax.random.fold_in(root, _STEP)
+    keys = jnp.stack([jax.random.fold_in(jax.random.fold_in(base, k), step)
+                      for k in range(seeds)])
+    return keys[0] if seeds == 1 else keys
+
+
+def epoch_order(root: jax.Array, epoch: int, n: int) -> np.ndarray:
+    """The window order of ``epoch``: a permutation of ``n`` from ``(seed, epoch)``."""
+    key = jax.random.fold_in(jax.random.fold_in(root, _ORDER), epoch)
+    return np.asarray(jax.random.permutation(key, n))
+
+
+def mean_offset_baseline(state: CalibState, seeds: int) -> jax.Array:
+    """The mean-offset baseline ``(C,)``: the mean of :data:`BASELINE_DRAWS` training offsets
+    drawn by the run's protocol from its training statistics (the first seed's: all seeds
+    share them)."""
+    s = jax.tree.map(lambda x: x[0], state) if seeds > 1 else state
+    key = jax.random.fold_in(_root(s.config), _BASELINE)
+    return mean_offset(training_offsets(key, s.config.injection, s.imu_stats, BASELINE_DRAWS))
+
+
+def _init_state(config: CalibConfig, parts: list[Windows], stats: ImuStats, seeds: int,
+                abstract: bool = False):
+    sample = gather(parts, np.arange(1), config.model, config.injection.single_sensor)
+    keys = jax.random.split(jax.random.fold_in(_root(config), _INIT), seeds)
+    if not abstract:
+        return (create_train_state(config, keys[0], sample, stats) if seeds == 1 else
+                create_train_states(config, keys, sample, stats))
+    # K stacked states: one state's shapes with a leading K axis (create_train_states
+    # iterates over its keys, which eval_shape cannot trace)
+    one = jax.eval_shape(lambda: create_train_state(config, keys[0], sample, stats))
+    return one if seeds == 1 else jax.tree.map(
+        lambda s: jax.ShapeDtypeStruct((seeds, *s.shape), s.dtype), one)
+
+
+def evaluate(state: CalibState, parts: list[Windows], seeds: int, *,
+             offsets: np.ndarray | None = None, show: bool = False) -> dict:
+    """Validation of ``state`` on ``parts``: each window carries the trial's one offset
+    (``offsets (C,)``; default drawn from ``(seed, "val")`` by the run's protocol).
+
+    Returns ``loss`` (per seed list when ``seeds > 1``), the eq. 19-23 metrics per seed
+    (overall and per channel), those of the mean-offset baseline, and ``offset``."""
+    s0 = jax.tree.map(lambda x: x[0], state) if seeds > 1 else state
+    config = s0.config
+    n = int(sum(len(p.indices) for p in parts))
+    if offsets is None:
+        offsets = validation_offsets(jax.random.fold_in(_root(config), _VAL), config.injection,
+                                     s0.imu_stats, 1)[0]
+    offsets = np.asarray(offsets, np.float32)
+    bs = config.train.batch_size
+    loss = np.zeros(seeds)
+    sums: dict[str, np.ndarray] | None = None
+    step = eval_step_seeds if seeds > 1 else eval_step
+    for b in progress_bar(range(0, n, bs), desc="validation", enabled=show, unit="batch"):
+        flat = np.arange(b, min(b + bs, n))
+        batch = gather(parts, flat, config.model, config.injection.single_sensor, bs)
+        batch["offset"] = np.broadcast_to(offsets, (bs, offsets.size)).copy()
+        m = jax.device_get(step(state, batch))
+        loss += np.reshape(m["loss"], -1) * flat.size
+        sums = m["sums"] if sums is None else jax.tree.map(np.add, sums, m["sums"])
+    per_seed = []
+    for k in range(seeds):
+        sk = jax.tree.map(lambda x, k=k: x[k], sums) if seeds > 1 else sums
+        per_seed.append(jax.tree.map(lambda x: np.asarray(x).tolist(), metrics_from_sums(sk)))
+    base = np.broadcast_to(np.asarray(mean_offset_baseline(state, seeds)), (n, offsets.size))
+    baseline = calibration_metrics(jnp.asarray(base), jnp.broadcast_to(offsets, base.shape))
+    loss = (loss / max(n, 1)).tolist()
+    return {"loss": loss[0] if seeds == 1 else loss, "metrics": per_seed,
+            "baseline_mean_offset": jax.tree.map(lambda x: np.asarray(x).tolist(), baseline),
+            "offset": offsets.tolist(), "windows": n}
+
+
+def read_run_config(run_dir: str | Path) -> tuple[CalibConfig, LoopConfig, WindowConfig, dict]:
+    """``(config, loop, window, resolved)`` from a run folder's ``config.json``."""
+    path = Path(run_dir) / "config.json"
+    if not path.is_file():
+        raise DataError("not a calib run folder (no config.json)", run_dir)
+    try:
+        saved = json.loads(path.read_text())
+        config = config_from_dict(CalibConfig, saved["calib"])
+        loop = LoopConfig(**saved["loop"])
+        window = WindowConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                 for k, v in saved["window"].items()})
+    except (KeyError, TypeError, ValueError) as err:
+        raise DataError(f"config.json does not describe a calib run ({err})", path) from None
+    return config, loop, window, saved
+
+
+def restore_run(run_dir: str | Path, parts: list[Windows], kind: str = "best"
+                ) -> tuple[CalibState, int]:
+    """``(state, seeds)`` of a run folder's ``kind`` checkpoint (``"best"`` or ``"last"``);
+    ``parts`` (windows cut with the run's window configuration) fix the input shapes and
+    must match the run's (one-line :class:`DataError` otherwise)."""
+    config, loop, _, _ = read_run_config(run_dir)
+    seeds = config.train.seeds
+    stats = training_statistics(parts, config.model.imu_channels,
+                                config.injection.single_sensor)
+    abstract = {"state": _init_state(config, parts, stats, seeds, abstract=True),
+                "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
+    with RunCheckpoints(run_dir, keep=loop.keep, read_only=True) as ckpt:
+        tree, _ = ckpt.restore(kind, abstract, resolved_config(config, loop, parts))
+    return tree["state"], seeds
+
+
+def _metrics_rows(path: Path, upto: int) -> list[dict]:
+    """Rows of ``metrics.jsonl`` up to epoch ``upto``; the file is rewritten with them."""
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] \
+        if path.is_file() else []
+    rows = [r for r in rows if r["epoch"] <= upto]
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return rows
+
+
+def _summary_row(row: dict) -> dict:
+    return {k: v for k, v in row.items() if not isinstance(v, list | dict)}
+
+
+def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
+        seeds: int | None = None, resume: bool = False, progress: bool = True,
+        loop: LoopConfig = LoopConfig(), stop_after: int | None = None) -> FitResult:
+    """Train ``config`` on ``train_windows``, validate on ``val_windows`` each epoch.
+
+    Args:
+        train_windows, val_windows: a WindowSet, :class:`~uavcal_jax.calib.data.Windows`, or
+            a list of them (``val_windows`` may be ``None`` when ``loop.monitor`` is
+            ``"train"``); all with the same frames per window and frame size.
+        run_dir: the run folder (see the module docstring).
+        seeds: ``K`` models in one vmapped run (default ``config.train.seeds``).
+        resume: continue from the last checkpoint (same configuration; ``train.epochs`` may
+            differ); the result equals that of an uninterrupted run.
+        progress: tqdm bars on stderr.
+        stop_after: stop after this many epochs of this call, as if killed after that
+            epoch's checkpoint (tests, smoke runs).
+
+    Raises:
+        DataError: no training windows, a run folder that already holds checkpoints without
+            ``resume``, or a checkpoint written with another configuration or version.
+    """
+    seeds = config.train.seeds if seeds is None else int(seeds)
+    config = with_overrides(config, {"train.seeds": seeds})
+    train, val = as_windows(train_windows), as_windows(val_windows)
+    run_dir = Path(run_dir)
+    n = int(sum(len(p.indices) for p in train))
+    if n == 0:
+        raise DataError("no training windows", run_dir)
+    if loop.monitor == "val" and not val:
+        raise DataError("loop.monitor=val needs validation windows", run_dir)
+    resolved = resolved_config(config, loop, train)
+    channels, sensor = config.model.imu_channels, config.injection.single_sensor
+    stats = training_statistics(train, channels, sensor)
+    root = _root(config)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    ckpt = RunCheckpoints(run_dir, keep=loop.keep)
+    metrics_path = run_dir / "metrics.jsonl"
+    es, start, stopped, rows = EarlyStopping(), 0, False, []
+    try:
+        if ckpt.latest() is not None and not resume:
+            raise DataError("the run folder already holds checkpoints; resume it or use "
+                            "another folder", run_dir)
+        if resume and ckpt.latest() is not None:
+            abstract = {"state": _init_state(config, train, stats, seeds, abstract=True),
+                        "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
+            tree, meta = ckpt.restore("last", abstract, resolved)
+            state = tree["state"]
+            root = jax.random.wrap_key_data(tree["key"])
+            rec = meta["early_stopping"]
+            es = EarlyStopping(math.inf if rec["best"] is None else rec["best"],
+                               rec["bad_epochs"], rec["best_epoch"])
+            start, stopped = int(meta["position"]["epoch"]), bool(meta["stopped"])
+            rows = _metrics_rows(metrics_path, start)
+        else:
+            state = _init_state(config, train, stats, seeds)
+            metrics_path.write_text("")
+        # Restored arrays are committed to a device, fresh ones are not, and jit caches the
+        # two apart: commit both so a resumed run reuses the uninterrupted run's executable.
+        state, root = jax.device_put((state, root), jax.devices()[0])
+        (run_dir / "config.json").write_text(json.dumps(resolved, indent=2) + "\n")
+        bs = config.train.batch_size
+        steps = -(-n // bs)
+        step_fn = train_step_seeds if seeds > 1 else train_step
+        key_data = jax.random.key_data(root)
+        for epoch in range(start, config.train.epochs):
+            if stopped or (stop_after is not None and epoch - start >= stop_after):
+                break
+            t0 = time.perf_counter()
+            order = epoch_order(root, epoch, n)
+            loss = np.zeros(seeds)
+            bar = progress_bar(range(steps), desc=f"epoch {epoch + 1}/{config.train.epochs}",
+                               enabled=progress, unit="step")
+            for b in bar:
+                flat = order[b * bs:(b + 1) * bs]
+                batch = gather(train, flat, config.model, sensor, bs)
+                state, m = step_fn(state, batch, _step_keys(root, seeds, epoch * steps + b))
+                loss += np.reshape(jax.device_get(m["loss"]), -1) * flat.size
+            loss /= n
+            if not np.all(np.isfinite(loss)):
+                raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}: "
+                                         f"{loss.tolist()}")
+            row: dict[str, Any] = {"epoch": epoch + 1, "loss": float(loss.mean()),
+                                   "loss_per_seed": loss.tolist(),
+                                   "train_time_s": time.perf_counter() - t0}
+            if val:
+                v = evaluate(state, val, seeds)
+                vloss = np.reshape(v["loss"], -1)
+                row.update(val_loss=float(vloss.mean()), val_loss_per_seed=vloss.tolist(),
+                           val_offset_rmse=float(np.mean([m["offset_rmse"]
+                                                          for m in v["metrics"]])),
+                           val_sign_f1=float(np.mean([m["sign_f1"] for m in v["metrics"]])),
+                           val_metrics=v["metrics"],
+                           baseline_offset_rmse=v["baseline_mean_offset"]["offset_rmse"])
+            monitored = row["val_loss"] if loop.monitor == "val" else row["loss"]
+            es, stopped = early_stopping_update(es, monitored, epoch + 1,
+                                                config.train.patience)
+            rows.append(row)
+            with metrics_path.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            meta = {"epoch": epoch + 1, "position": {"epoch": epoch + 1, "batch": 0},
+                    "early_stopping": {"best": None if math.isinf(es.best) else es.best,
+                                       "bad_epochs": es.bad_epochs,
+                                       "best_epoch": es.best_epoch},
+                    "stopped": stopped, "seeds": seeds, "config": resolved}
+            tree = {"state": state, "key": key_data}
+            if es.best_epoch == epoch + 1:
+                ckpt.save("best", epoch + 1, tree, meta)
+            ckpt.save("last", epoch + 1, tree, meta)
+    finally:
+        ckpt.close()
+    best = next((r for r in rows if r["epoch"] == es.best_epoch), {})
+    summary = {"run": str(run_dir), "seeds": seeds, "epochs": len(rows),
+               "steps": int(np.reshape(jax.device_get(state.step), -1)[0]),
+               "stopped_early": stopped, "best_epoch": es.best_epoch,
+               "monitor": loop.monitor, "num_train": n,
+               "num_val": int(sum(len(p.indices) for p in val)),
+               "best": _summary_row(best), "final": _summary_row(rows[-1]) if rows else {}}
+    return FitResult(state=state, summary=summary)

@@ -1,0 +1,256 @@
+"""``uavcal calib``: train and evaluate the transformer IMU self-calibrator (Avola et al. 2023).
+
+Every option's default and choices come from the configuration dataclasses
+(:mod:`uavcal_jax.calib.config`, :class:`uavcal_jax.calib.loop.LoopConfig`,
+:class:`uavcal_jax.data.windows.WindowConfig`); ``--set`` reaches every field of them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from uavcal_jax.argtypes import positive_int, print_json
+from uavcal_jax.errors import DataError
+from uavcal_jax.xla_cache import enable_compilation_cache
+
+DESCRIPTION = """\
+Train and evaluate the transformer IMU self-calibrator of Avola et al. (Sensors 2023): windows
+of camera frames and IMU samples, a constant offset injected into the IMU, the network learns to
+predict it. DIR: EuRoC folders (real or simulated by `uavcal simulate`) or folders of them.
+Bad input: a sequence shorter than one window is an error; NaN/inf IMU rows are dropped with a
+warning; all-black frames are treated as missing frames (masked) with a warning."""
+
+TRAIN_EPILOG = """\
+--set KEY=VALUE sets any field: model.*, loss.*, injection.*, train.* (uavcal_jax.calib.config),
+window.* (duration, stride, size WxH, camera, color, min_valid_fraction) and loop.* (monitor
+train|val, keep, val_fraction, split_seed, folds); --set wins over the flags. RUN gets
+config.json, data.json (the windows of each side), metrics.jsonl and checkpoints/{last,best};
+loo/kfold write one such folder per trial, RUN/trial_NN, and RUN/result.json with the mean and
+standard deviation of the validation metrics over trials.
+
+examples:
+  uavcal calib train --data sims/ --out runs/cal --validation loo --epochs 20
+  uavcal calib train --data sims/V1_01 --out runs/cal --seeds 4 --set window.duration=4
+  uavcal calib train --data sims/ --out runs/cal --validation loo --resume"""
+
+#: Trial folder names of loo/kfold runs.
+TRIAL_FORMAT = "trial_{:02d}"
+#: Headline validation metrics averaged over trials.
+HEADLINE = ("val_loss", "val_offset_rmse", "val_sign_f1", "baseline_offset_rmse")
+
+
+def register(subparsers) -> None:
+    from uavcal_jax.calib.config import PROTOCOLS, InjectionConfig, TrainConfig
+    from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig
+
+    raw = argparse.RawDescriptionHelpFormatter
+    parser = subparsers.add_parser("calib", help="train and evaluate the IMU self-calibrator",
+                                   description=DESCRIPTION, formatter_class=raw)
+    sub = parser.add_subparsers(dest="calib_command", metavar="ACTION", required=True)
+
+    p = sub.add_parser("train", help="train the calibrator on EuRoC folders",
+                       description=DESCRIPTION, epilog=TRAIN_EPILOG, formatter_class=raw)
+    p.add_argument("--data", required=True, nargs="+", metavar="DIR",
+                   help="EuRoC sequence folders or folders of them")
+    p.add_argument("--out", required=True, metavar="RUN", help="the run folder to write")
+    p.add_argument("--protocol", choices=PROTOCOLS, default=InjectionConfig.protocol,
+                   help="offset injection (paper: N(mu, n_m sigma^2) of the training IMU; "
+                        "symmetric: U(-n_m sigma, n_m sigma); physical: real bias ranges) "
+                        "[default: %(default)s]")
+    p.add_argument("--validation", choices=VALIDATIONS, default=LoopConfig.validation,
+                   help="split: fixed random split over windows; loo: leave one sequence "
+                        "out; kfold: contiguous blocks of windows [default: %(default)s]")
+    p.add_argument("--seeds", type=positive_int, default=TrainConfig.seeds,
+                   help="models trained at once, vmapped [default: %(default)s]")
+    p.add_argument("--epochs", type=positive_int, default=TrainConfig.epochs,
+                   help="most epochs (early stopping may end sooner) [default: %(default)s]")
+    p.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
+                   help="set configuration fields (see below); repeatable")
+    p.add_argument("--resume", action="store_true",
+                   help="continue RUN from its last checkpoints (same settings; --epochs may "
+                        "be raised)")
+    p.add_argument("--stop-after", type=positive_int, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
+    p.set_defaults(func=run_train)
+
+    p = sub.add_parser("eval", help="metrics of a trained run's best model",
+                       description="Evaluate the best checkpoint of a run (each trial of a "
+                       "loo/kfold run) on its validation windows or on --data, beside the "
+                       "mean-offset baseline.", formatter_class=raw)
+    p.add_argument("run", metavar="RUN", help="a run folder written by `calib train`")
+    p.add_argument("--data", nargs="+", metavar="DIR", default=None,
+                   help="evaluate on every window of these sequences [default: the run's "
+                        "validation windows]")
+    p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
+    p.set_defaults(func=run_eval)
+
+
+# ----------------------------------------------------------------------------- configuration
+
+
+def _section(sets: list[str]) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {"window": [], "loop": [], "calib": []}
+    for text in sets:
+        if "=" not in text:
+            raise DataError(f"--set {text!r} is not KEY=VALUE")
+        head = text.split(".", 1)[0].strip()
+        if head in ("window", "loop"):
+            out[head].append(text.split(".", 1)[1])
+        else:
+            out["calib"].append(text)
+    return out
+
+
+def _apply(obj, sets: list[str], prefix: str):
+    from uavcal_jax.calib.config import with_overrides
+
+    try:
+        return with_overrides(obj, sets)
+    except KeyError as err:
+        key = str(err.args[0]).split("'")[1] if "'" in str(err.args[0]) else str(err.args[0])
+        raise DataError(f"--set: unknown configuration key {prefix + key!r} (sections: model, "
+                        "loss, injection, train, window, loop)") from None
+    except (ValueError, TypeError) as err:
+        raise DataError(f"--set: {err}") from None
+
+
+def train_configs(args):
+    """``(CalibConfig, LoopConfig, WindowConfig)`` of parsed ``calib train`` arguments."""
+    from uavcal_jax.calib.config import CalibConfig, with_overrides
+    from uavcal_jax.calib.loop import LoopConfig
+    from uavcal_jax.data.windows import WindowConfig
+
+    sets = _section(args.set)
+    calib = with_overrides(CalibConfig(), {"injection.protocol": args.protocol,
+                                           "train.epochs": args.epochs,
+                                           "train.seeds": args.seeds})
+    calib = _apply(calib, sets["calib"], "")
+    loop = _apply(LoopConfig(validation=args.validation), sets["loop"], "loop.")
+    window = _apply(WindowConfig(), sets["window"], "window.")
+    return calib, loop, window
+
+
+# ----------------------------------------------------------------------------- train
+
+
+def _trials(parts, loop):
+    from uavcal_jax.calib.data import kfold_windows, leave_one_out, split_windows
+
+    if loop.validation == "split":
+        return split_windows(parts, loop.val_fraction, loop.split_seed)
+    if loop.validation == "loo":
+        return leave_one_out(parts)
+    return kfold_windows(parts, loop.folds)
+
+
+def _sides(train, val) -> dict:
+    return {side: [{"source": p.source, "indices": p.indices.tolist()} for p in parts]
+            for side, parts in (("train", train), ("val", val))}
+
+
+def _aggregate(rows: list[dict]) -> dict:
+    out = {}
+    for k in HEADLINE:
+        vals = [r[k] for r in rows if r.get(k) is not None]
+        if vals:
+            out[k] = {"mean": float(np.mean(vals)), "std": float(np.std(vals)),
+                      "values": vals}
+    return out
+
+
+def run_train(args) -> int:
+    from uavcal_jax.calib.data import load_windows
+    from uavcal_jax.calib.loop import fit
+
+    calib, loop, window = train_configs(args)
+    enable_compilation_cache()
+    parts = load_windows(args.data, window)
+    trials = _trials(parts, loop)
+    out = Path(args.out)
+    results = []
+    for i, (train, val) in enumerate(trials):
+        run_dir = out if len(trials) == 1 else out / TRIAL_FORMAT.format(i)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "data.json").write_text(json.dumps(_sides(train, val)) + "\n")
+        res = fit(calib, train, val, run_dir, resume=args.resume, progress=not args.json,
+                  loop=loop, stop_after=args.stop_after)
+        results.append({**res.summary, "held_out": [p.source for p in val]})
+    summary = {"run": str(out), "validation": loop.validation, "protocol":
+               calib.injection.protocol, "seeds": calib.train.seeds, "trials": results,
+               "mean_std": _aggregate([r["best"] for r in results])}
+    (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if args.json:
+        print_json(summary)
+    else:
+        for r in results:
+            b = r["best"]
+            print(f"{r['run']}: {r['epochs']} epochs, best {r['best_epoch']}: loss "
+                  f"{b.get('loss', float('nan')):.4f}, val offset RMSE "
+                  f"{b.get('val_offset_rmse', float('nan')):.4f} (mean-offset baseline "
+                  f"{b.get('baseline_offset_rmse', float('nan')):.4f})")
+    return 0
+
+
+# ----------------------------------------------------------------------------- eval
+
+
+def run_dirs(run: str | Path) -> list[Path]:
+    """The fit folders of ``run``: itself, or its trial folders."""
+    run = Path(run)
+    if (run / "config.json").is_file():
+        return [run]
+    trials = sorted(p for p in run.glob("trial_*") if (p / "config.json").is_file())
+    if not trials:
+        raise DataError("not a calib run folder (no config.json, no trial_*/)", run)
+    return trials
+
+
+def _val_windows(run_dir: Path, window, cache: dict):
+    from uavcal_jax.calib.data import Windows, load_windows
+
+    path = run_dir / "data.json"
+    if not path.is_file():
+        raise DataError("no data.json: give --data", run_dir)
+    parts = []
+    for entry in json.loads(path.read_text())["val"]:
+        if entry["source"] not in cache:
+            (cache[entry["source"]],) = load_windows([entry["source"]], window)
+        w = cache[entry["source"]]
+        parts.append(Windows(w.windows, np.asarray(entry["indices"], np.int64), w.source))
+    return parts
+
+
+def run_eval(args) -> int:
+    from uavcal_jax.calib.data import load_windows
+    from uavcal_jax.calib.loop import evaluate, read_run_config, restore_run
+
+    enable_compilation_cache()
+    cache: dict = {}
+    trials = []
+    for run_dir in run_dirs(args.run):
+        _, _, window, _ = read_run_config(run_dir)
+        parts = (load_windows(args.data, window) if args.data
+                 else _val_windows(run_dir, window, cache))
+        if not parts:
+            raise DataError("no validation windows to evaluate on: give --data", run_dir)
+        state, seeds = restore_run(run_dir, parts)
+        res = evaluate(state, parts, seeds, show=not args.json)
+        trials.append({"run": str(run_dir), **res})
+    rows = [{"val_loss": float(np.mean(t["loss"])),
+             "val_offset_rmse": float(np.mean([m["offset_rmse"] for m in t["metrics"]])),
+             "val_sign_f1": float(np.mean([m["sign_f1"] for m in t["metrics"]])),
+             "baseline_offset_rmse": t["baseline_mean_offset"]["offset_rmse"]} for t in trials]
+    summary = {"run": str(args.run), "data": args.data, "trials": trials,
+               "mean_std": _aggregate(rows)}
+    if args.json:
+        print_json(summary)
+    else:
+        for t, r in zip(trials, rows, strict=True):
+            print(f"{t['run']}: {t['windows']} windows, offset RMSE {r['val_offset_rmse']:.4f}, "
+                  f"sign F1 {r['val_sign_f1']:.4f}; mean-offset baseline offset RMSE "
+                  f"{r['baseline_offset_rmse']:.4f}")
+    return 0
