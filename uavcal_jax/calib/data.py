@@ -30,7 +30,7 @@ import numpy as np
 
 from uavcal_jax.calib.batch import model_batch
 from uavcal_jax.calib.config import ModelConfig
-from uavcal_jax.calib.inject import ImuStats, imu_statistics
+from uavcal_jax.calib.inject import ImuStats, imu_statistics, window_samples
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.windows import WindowConfig, WindowSet, make_windows
 from uavcal_jax.errors import DataError, DataRepairWarning
@@ -135,11 +135,7 @@ def training_statistics(parts: list[Windows], channels: int, sensor: str) -> Imu
     protocol's ``mu``, ``sigma``); 3 channels: those of ``sensor``."""
     samples = []
     for p in parts:
-        ws = p.windows
-        covered = np.zeros(ws.imu_t_ns.shape[0], bool)
-        for lo, hi in ws.imu_range[p.indices]:
-            covered[lo:hi] = True
-        imu = np.concatenate([ws.gyro[covered], ws.accel[covered]], axis=1)
+        imu = window_samples(p.windows, p.indices)
         if channels == 3:
             imu = imu[:, :3] if sensor == "gyro" else imu[:, 3:]
         samples.append(imu)

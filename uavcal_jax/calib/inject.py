@@ -39,6 +39,7 @@ __all__ = [
     "sample_offset",
     "training_offsets",
     "validation_offsets",
+    "window_samples",
 ]
 
 
@@ -50,10 +51,12 @@ class ImuStats(NamedTuple):
     std: jax.Array
 
 
-def _window_samples(ws: WindowSet) -> np.ndarray:
-    """Every IMU sample inside any window of ``ws``, ``(N, 6)`` (gyro, accel)."""
+def window_samples(ws: WindowSet, indices=None) -> np.ndarray:
+    """Every IMU sample inside any window of ``ws`` (or only of the windows ``indices``),
+    ``(N, 6)`` (gyro rad/s, accel m/s^2), each sample once however many windows hold it."""
     covered = np.zeros(ws.imu_t_ns.shape[0], bool)
-    for lo, hi in ws.imu_range:
+    ranges = ws.imu_range if indices is None else ws.imu_range[np.asarray(indices)]
+    for lo, hi in ranges:
         covered[lo:hi] = True
     return np.concatenate([ws.gyro[covered], ws.accel[covered]], axis=1)
 
@@ -67,10 +70,10 @@ def imu_statistics(source, mask=None) -> ImuStats:
     Statistics are accumulated in float64 and returned as float32.
     """
     if isinstance(source, WindowSet):
-        samples = _window_samples(source)
+        samples = window_samples(source)
     elif isinstance(source, Sequence) and source and all(isinstance(s, WindowSet)
                                                         for s in source):
-        samples = np.concatenate([_window_samples(s) for s in source])
+        samples = np.concatenate([window_samples(s) for s in source])
     else:
         arr = np.asarray(source, np.float64)
         samples = arr.reshape(-1, arr.shape[-1])
