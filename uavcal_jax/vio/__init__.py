@@ -17,6 +17,8 @@ Back end (JAX, pure functions):
 * :mod:`~uavcal_jax.vio.normal`: the structured normal equations and their Schur solve.
 * :mod:`~uavcal_jax.vio.solver`: the :class:`Solver` interface and the structured
   Levenberg-Marquardt; :mod:`~uavcal_jax.vio.reference`: jaxopt behind the same interface.
+* :mod:`~uavcal_jax.vio.marginalize`: sliding the window (the oldest keyframe marginalised
+  into a linear prior, or the second-newest frame dropped with its IMU intervals merged).
 * :mod:`~uavcal_jax.vio.implicit`: gradients of the solution by implicit differentiation.
 * :mod:`~uavcal_jax.vio.synthetic`: an exactly consistent synthetic window.
 
@@ -31,6 +33,14 @@ from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures
 from uavcal_jax.vio.frontend_config import FrontendConfig, KeyframeConfig
 from uavcal_jax.vio.implicit import solve_differentiable
 from uavcal_jax.vio.keyframes import KeyframeDecision, body_to_camera_rotation, keyframe_decision
+from uavcal_jax.vio.marginalize import (
+    ImuSamples,
+    MarginalizeConfig,
+    drop_second_newest,
+    marginal_information,
+    marginalize_oldest,
+    slide_imu_samples,
+)
 from uavcal_jax.vio.normal import NormalEquations, normal_equations
 from uavcal_jax.vio.reference import JaxoptSolver
 from uavcal_jax.vio.residuals import (
@@ -79,9 +89,11 @@ __all__ = [
     "CalibParams",
     "CostConfig",
     "ImuFactors",
+    "ImuSamples",
     "JaxoptSolver",
     "Keyframes",
     "Landmarks",
+    "MarginalizeConfig",
     "NormalEquations",
     "Observations",
     "Prior",
@@ -91,13 +103,17 @@ __all__ = [
     "StructuredSolver",
     "WindowProblem",
     "WindowState",
+    "drop_second_newest",
     "flat_residual",
     "frame_difference",
     "gauss_newton_step",
+    "marginal_information",
+    "marginalize_oldest",
     "normal_equations",
     "prior_from_information",
     "factor_residuals",
     "retract",
+    "slide_imu_samples",
     "solve_differentiable",
     "stacked_residuals",
     "structured_solve",
