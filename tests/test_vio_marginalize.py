@@ -28,7 +28,7 @@ from uavcal_jax.vio import (
 )
 from uavcal_jax.vio.normal import solve_step
 from uavcal_jax.vio.residuals import prior_residual
-from uavcal_jax.vio.synthetic import SyntheticConfig, _imu_samples, perturb, synthetic_window
+from uavcal_jax.vio.synthetic import SyntheticConfig, imu_samples, perturb, synthetic_window
 from uavcal_jax.vio.window import retract_frames
 
 # the window and solver of tests/test_vio_solver.py, so compiled solves are shared
@@ -270,7 +270,7 @@ def test_marginal_covariance_and_gauge(solved, x64):
 
 def _window_samples():
     """The synthetic window's raw IMU samples, padded to twice their count per interval."""
-    dt, gyro, accel = _imu_samples(SYN)
+    dt, gyro, accel = imu_samples(SYN)
     S = 2 * dt.shape[1]
     pad = ((0, 0), (0, S - dt.shape[1]))
     samples = ImuSamples(jnp.asarray(np.pad(dt, pad, constant_values=1.0)),

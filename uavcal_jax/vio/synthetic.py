@@ -42,7 +42,7 @@ from uavcal_jax.vio.window import (
     retract_frames,
 )
 
-__all__ = ["SyntheticConfig", "SyntheticWindow", "perturb", "synthetic_window"]
+__all__ = ["SyntheticConfig", "SyntheticWindow", "imu_samples", "perturb", "synthetic_window"]
 
 _AMP = np.array([0.3, 0.6, 0.2])
 _OMEGA = np.array([1.1, 0.9, 1.7])
@@ -120,7 +120,10 @@ def _right_jacobian(phi):
     return np.eye(3) - (1 - np.cos(t)) / t**2 * W + (t - np.sin(t)) / t**3 * (W @ W)
 
 
-def _imu_samples(cfg: SyntheticConfig):
+def imu_samples(cfg: SyntheticConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The exact IMU samples of every keyframe interval: ``dt (n_frames - 1, n)`` seconds,
+    ``gyro (n_frames - 1, n, 3)`` rad/s and ``accel (n_frames - 1, n, 3)`` m/s^2 in the body
+    frame, each sampled at the midpoint of the step it is held for."""
     n = int(round(cfg.keyframe_dt * cfg.imu_rate_hz))
     h = cfg.keyframe_dt / n
     t = cfg.keyframe_dt * np.arange(cfg.n_frames - 1)[:, None] + h * (np.arange(n) + 0.5)
@@ -151,7 +154,7 @@ def synthetic_window(config: SyntheticConfig | None = None, seed: int = 0,
     cams = (euroc_camera(0, jnp.float64), euroc_camera(1, jnp.float64))
     off = np.asarray(config.imu_offset, np.float64)
 
-    dt, gyro, accel = _imu_samples(config)
+    dt, gyro, accel = imu_samples(config)
     clean = preintegrate(dt, gyro, accel, noise=noise)
     pim = (preintegrate(dt, gyro + off[:3], accel + off[3:], noise=noise) if np.any(off)
            else clean)
