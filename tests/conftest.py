@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import jax
@@ -31,14 +32,36 @@ def x64():
         yield
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="session", autouse=True)
+def _no_cli_cache_in_home():
+    """The commands' persistent compile cache (``uavcal_jax.xla_cache``) stays off in tests:
+    nothing is written under the user's home, and no test module inherits a cache another
+    module's CLI call switched on."""
+    before = os.environ.get("UAVCAL_JAX_CACHE")
+    os.environ["UAVCAL_JAX_CACHE"] = "off"
+    yield
+    if before is None:
+        os.environ.pop("UAVCAL_JAX_CACHE", None)
+    else:
+        os.environ["UAVCAL_JAX_CACHE"] = before
+
+
+@pytest.fixture(scope="module")
 def xla_cache(tmp_path_factory):
-    """A session-wide persistent XLA compilation cache, so identical computations compiled by
-    several tests (detector training steps, say) compile once."""
+    """A persistent XLA compilation cache for the test module that asks for it, in one
+    session-wide folder, so identical computations compiled by several tests or modules
+    (detector training steps, say) compile once. It is switched off again after the module:
+    the cache is process-wide, and writing every later module's executables to it is slow and
+    has crashed XLA:CPU's executable serialisation (a segfault in ``serialize`` seen once in a
+    full run)."""
     from jax.experimental.compilation_cache import compilation_cache as cc
 
-    if not jax.config.jax_compilation_cache_dir:
-        jax.config.update("jax_compilation_cache_dir",
-                          str(tmp_path_factory.getbasetemp() / "xla_cache"))
-        cc.reset_cache()
+    if jax.config.jax_compilation_cache_dir:  # the caller chose a cache: leave it alone
+        yield
+        return
+    jax.config.update("jax_compilation_cache_dir",
+                      str(tmp_path_factory.getbasetemp() / "xla_cache"))
+    cc.reset_cache()
     yield
+    jax.config.update("jax_compilation_cache_dir", None)
+    cc.reset_cache()
