@@ -484,8 +484,6 @@ def make_renderer(cam: camera_model.PinholeRadtan, color: str = "rgb", tile=DEFA
     def fn(scene: Scene, T_WC, t):
         return batched(scene, bundle, jnp.asarray(T_WC, jnp.float32), jnp.asarray(t, jnp.float32))
 
-    fn.jitted = batched
-    fn.bundle = bundle
     return fn
 
 
