@@ -46,6 +46,17 @@ def _no_cli_cache_in_home():
         os.environ["UAVCAL_JAX_CACHE"] = before
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_code():
+    """Drop every compiled executable after each test module. A single process runs the
+    whole suite, and XLA:CPU keeps each executable's JIT code mapped: two full runs that kept
+    them all segfaulted inside XLA (once compiling, once serialising) late in the suite, where
+    the same modules alone pass. Modules do not share compiled functions, so nothing is
+    recompiled that would not be anyway."""
+    yield
+    jax.clear_caches()
+
+
 @pytest.fixture(scope="module")
 def xla_cache(tmp_path_factory):
     """A persistent XLA compilation cache for the test module that asks for it, in one
