@@ -9,9 +9,12 @@ consecutive keyframes, the prior only keyframes, so the system is::
 
 with ``H_ff`` (15N, 15N) dense, ``H_fl`` (15N, L) and ``H_ll`` (L,) diagonal.
 
-Per-factor blocks come from ``jax.jacfwd`` of the small local residuals of
-:mod:`uavcal_jax.vio.residuals` (13 columns for an observation: 6 + 6 pose, 1 inverse depth;
-30 for an IMU interval) and are accumulated with segment sums. Landmarks are eliminated by the
+Per-factor blocks come from the small local residuals of :mod:`uavcal_jax.vio.residuals`
+(13 columns for an observation: 6 + 6 pose, 1 inverse depth; 30 for an IMU interval): the
+observations' Gauss-Newton blocks from their analytic Jacobian
+(:func:`~uavcal_jax.vio.residuals.observation_jacobian`, 5x faster on XLA:CPU than ``jacfwd``
+of the same residual, which the exact Hessian still uses), the IMU intervals' from ``jacfwd``;
+they are accumulated with segment sums. Landmarks are eliminated by the
 Schur complement ``S = H_ff - H_fl H_ll^-1 H_fl^T`` and ``S`` (150 x 150 for N = 10) is
 factored by Cholesky; the inverse depths follow by back-substitution.
 
@@ -39,6 +42,7 @@ from uavcal_jax.vio.residuals import (
     imu_local,
     imu_mask,
     landmark_mask,
+    observation_jacobian,
     observation_local,
     observation_mask,
     prior_residual,
@@ -162,7 +166,17 @@ def normal_equations(state: WindowState, problem: WindowProblem, params: CalibPa
                     jnp.where(use, robust.weight(s, cfg.robust, cfg.robust_scale), 0.0))
         return _local_blocks(fun, 2 * _P + 1, wfn, exact)
 
-    H13, g13, c_obs = jax.vmap(obs_blocks)(g_obs, om)
+    if exact:
+        H13, g13, c_obs = jax.vmap(obs_blocks)(g_obs, om)
+    else:
+        r, J = observation_jacobian(g_obs, cfg)
+        s = jnp.sum(r * r, -1)
+        w = jnp.where(om, robust.weight(s, cfg.robust, cfg.robust_scale), 0.0)
+        c_obs = 0.5 * jnp.where(om, robust.rho(s, cfg.robust, cfg.robust_scale), 0.0)
+        # J^T J and J^T r over the two rows as elementwise products (see residuals._mm)
+        H13 = w[:, None, None] * (J[:, 0, :, None] * J[:, 0, None, :]
+                                  + J[:, 1, :, None] * J[:, 1, None, :])
+        g13 = w[:, None] * (J[:, 0] * r[:, 0:1] + J[:, 1] * r[:, 1:2])
     a = problem.landmarks.anchor[problem.observations.landmark]
     b = problem.observations.frame
     lm = problem.observations.landmark
