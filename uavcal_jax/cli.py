@@ -15,7 +15,7 @@ from uavcal_jax import __version__
 from uavcal_jax.errors import DataError
 
 #: Sub-command modules under ``uavcal_jax.commands``, in ``--help`` order.
-COMMANDS = ("simulate", "info", "calib", "detect", "demo")
+COMMANDS = ("simulate", "info", "calib", "vio", "detect", "demo")
 
 
 def build_parser() -> argparse.ArgumentParser:

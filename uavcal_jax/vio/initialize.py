@@ -1,0 +1,131 @@
+"""Stereo-inertial initialisation: gravity-aligned attitude from the accelerometer, stereo
+triangulation, the gauge prior on the first keyframe, and the gyroscope bias from visual
+rotations (VINS-Mono's ``solveGyroscopeBias``).
+
+Frames: the world frame is gravity-aligned (z up, gravity ``-9.81 z``) with the yaw of the
+first keyframe's body at zero and its origin at the first keyframe (or, after a reset, the
+propagated state). NumPy, float64; the prior is returned as the back end's pytree.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from uavcal_jax.vio.estimator_config import InitialPrior
+from uavcal_jax.vio.window import FRAME_DIM, Keyframes, Prior
+
+__all__ = [
+    "gauge_prior",
+    "gravity_aligned_rotation",
+    "gyro_bias_from_rotations",
+    "triangulate_stereo",
+    "yaw_of",
+]
+
+
+def gravity_aligned_rotation(accel_mean: np.ndarray, yaw: float = 0.0) -> np.ndarray:
+    """Body-to-world rotation (3, 3) whose body z-axis measurement ``accel_mean`` (3,) m/s^2
+    (the specific force of a body at rest or in uniform motion points up, world ``+z``) maps to
+    world ``+z``, with the given yaw (rad) about world z.
+
+    Raises:
+        ValueError: ``accel_mean`` is not finite or nearly zero (free fall or a dead sensor).
+    """
+    a = np.asarray(accel_mean, np.float64).reshape(3)
+    n = float(np.linalg.norm(a))
+    if not np.isfinite(n) or n < 1.0:
+        raise ValueError(f"cannot level from an accelerometer reading of norm {n:.3g} m/s^2")
+    # the smallest rotation taking the measured "up" (body) to world z
+    R, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), (a / n)[None])
+    R = R.as_matrix()
+    return Rotation.from_euler("z", yaw - yaw_of(R)).as_matrix() @ R
+
+
+def yaw_of(R_WB: np.ndarray) -> float:
+    """Yaw (rad) of a body-to-world rotation: the heading of its body x-axis in world xy
+    (``atan2`` of the rotated x axis), the convention :func:`gravity_aligned_rotation` sets."""
+    x = np.asarray(R_WB)[:, 0]
+    return float(np.arctan2(x[1], x[0]))
+
+
+def triangulate_stereo(xy_left: np.ndarray, xy_right: np.ndarray, T_C0C1: np.ndarray
+                       ) -> np.ndarray:
+    """Depths (N,) m along the left camera's z of stereo matches, by least squares.
+
+    ``X0 = z0 (x0, y0, 1)`` and ``X0 = R z1 (x1, y1, 1) + t`` (``T_C0C1`` maps right-camera
+    points into the left camera) give ``z0 b0 - z1 R b1 = t``, solved for ``(z0, z1)`` per
+    match. Parallel rays (a point at infinity) give ``inf``; a point behind either camera a
+    negative or non-finite value, which callers reject.
+
+    Args:
+        xy_left, xy_right: (N, 2) undistorted normalised coordinates.
+        T_C0C1: (4, 4) pose of the right camera in the left camera's frame.
+    """
+    xy_left = np.asarray(xy_left, np.float64).reshape(-1, 2)
+    xy_right = np.asarray(xy_right, np.float64).reshape(-1, 2)
+    R, t = T_C0C1[:3, :3], T_C0C1[:3, 3]
+    b0 = np.concatenate([xy_left, np.ones((len(xy_left), 1))], 1)
+    b1 = np.concatenate([xy_right, np.ones((len(xy_right), 1))], 1) @ R.T
+    # normal equations of [b0, -b1] (z0, z1) = t, 2x2 per match
+    a11 = np.sum(b0 * b0, 1)
+    a12 = -np.sum(b0 * b1, 1)
+    a22 = np.sum(b1 * b1, 1)
+    r0 = b0 @ t
+    r1 = -(b1 @ t)
+    det = a11 * a22 - a12 * a12
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z0 = (a22 * r0 - a12 * r1) / det
+        z1 = (a11 * r1 - a12 * r0) / det
+    z0 = np.where(np.abs(det) < 1e-12 * a11 * a22, np.inf, z0)
+    return np.where(z1 > 0, z0, -np.abs(z0))
+
+
+def gauge_prior(frames: Keyframes, n_slots: int, sigma: InitialPrior,
+                velocity_sigma: float | None = None) -> Prior:
+    """The prior on keyframe slot 0 at (re-)initialisation (a :class:`Prior` over all slots,
+    zero outside slot 0), centred on ``frames``' slot 0.
+
+    Rotation information in the body tangent (right perturbation): ``1 / yaw`` along the world
+    z-axis seen in the body (``R^T e_z``), ``1 / roll_pitch`` across it. Position, velocity and
+    biases isotropic. ``velocity_sigma`` overrides ``sigma.velocity``.
+    """
+    R = np.asarray(frames.rotation[0], np.float64)
+    up = R.T @ np.array([0.0, 0.0, 1.0])
+    info_rot = (np.outer(up, up) / sigma.yaw**2
+                + (np.eye(3) - np.outer(up, up)) / sigma.roll_pitch**2)
+    sig_v = sigma.velocity if velocity_sigma is None else velocity_sigma
+    diag = np.concatenate([np.full(3, 1 / sigma.position**2), np.full(3, 1 / sig_v**2),
+                           np.full(3, 1 / sigma.bias_gyro**2), np.full(3, 1 / sigma.bias_accel**2)])
+    info = np.zeros((FRAME_DIM, FRAME_DIM))
+    info[:3, :3] = info_rot
+    info[3:, 3:] = np.diag(diag)
+    w, V = np.linalg.eigh(info)
+    block = np.sqrt(w)[:, None] * V.T  # block^T block = info
+    D = FRAME_DIM * n_slots
+    J = np.zeros((D, D))
+    J[:FRAME_DIM, :FRAME_DIM] = block
+    return Prior(J=jnp.asarray(J), r=jnp.zeros(D), lin=frames, mask=jnp.asarray(True))
+
+
+def gyro_bias_from_rotations(R_WB: np.ndarray, delta_R: np.ndarray, d_R_d_bg: np.ndarray
+                             ) -> np.ndarray:
+    """The gyro-bias correction (3,) rad/s that best aligns preintegrated rotations with the
+    keyframes' rotations (VINS-Mono ``solveGyroscopeBias``), one Gauss-Newton step.
+
+    ``delta_R(bg + d) ~= delta_R exp(d_R_d_bg d)``, so each interval ``k -> k + 1`` gives
+    ``log(delta_R^T R_k^T R_{k+1}) ~= d_R_d_bg d``; stacked, solved by least squares.
+
+    Args:
+        R_WB: (K + 1, 3, 3) keyframe body-to-world rotations (visual estimates).
+        delta_R: (K, 3, 3) preintegrated rotations of the intervals between them.
+        d_R_d_bg: (K, 3, 3) their right-perturbation bias Jacobians.
+    """
+    R_WB = np.asarray(R_WB, np.float64)
+    rel = np.einsum("kji,kjl->kil", R_WB[:-1], R_WB[1:])  # R_k^T R_{k+1}
+    err = np.einsum("kji,kjl->kil", np.asarray(delta_R, np.float64), rel)
+    e = Rotation.from_matrix(err).as_rotvec().reshape(-1)
+    A = np.asarray(d_R_d_bg, np.float64).reshape(-1, 3)
+    d, *_ = np.linalg.lstsq(A, e, rcond=None)
+    return d

@@ -1,0 +1,152 @@
+"""Run the stereo VIO over a whole recorded sequence (EuRoC folder or ROS bag, as read by
+:mod:`uavcal_jax.data`), and the run's result: camera-rate trajectory, flags and timings.
+
+Stereo pairing: a left frame is paired with the right frame of the same timestamp (within
+``PAIR_TOLERANCE_NS``); a left frame without one is processed monocularly (no stereo
+observations), a right frame without a left one is ignored. A left image that cannot be read
+is processed as a dropped frame (no features; the estimator carries on with the IMU) and
+counted in ``VioResult.unreadable``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from uavcal_jax.data.sequence import GroundTruth, ImuData, Sequence
+from uavcal_jax.errors import DataError, DataRepairWarning
+from uavcal_jax.imu import remove_offset
+from uavcal_jax.progress import progress
+from uavcal_jax.vio.estimator import FrameEstimate, StereoVio
+from uavcal_jax.vio.estimator_config import EstimatorConfig
+
+__all__ = ["PAIR_TOLERANCE_NS", "VioResult", "run_vio", "stereo_pairs"]
+
+#: Largest left/right timestamp difference still paired as one stereo frame, ns.
+PAIR_TOLERANCE_NS = 1_000_000
+
+
+@dataclasses.dataclass(frozen=True)
+class VioResult:
+    """A VIO run: one :class:`~uavcal_jax.vio.estimator.FrameEstimate` per left frame.
+
+    Attributes:
+        frames: the per-frame estimates.  resets: failure resets.
+        unreadable: left images that could not be read (processed as dropped frames).
+        config: the :class:`EstimatorConfig` used.  imu_offset: (6,) the offset removed.
+    """
+
+    frames: list[FrameEstimate]
+    resets: int
+    unreadable: int
+    config: EstimatorConfig
+    imu_offset: np.ndarray
+
+    def trajectory(self) -> GroundTruth:
+        """The frames with a pose as a trajectory (body = IMU frame, world gravity-aligned),
+        in the ground-truth container, ready for :func:`uavcal_jax.data.tum.write_tum`."""
+        est = [f for f in self.frames if f.has_pose]
+        if not est:
+            return GroundTruth(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+        q = Rotation.from_matrix(np.stack([f.rotation for f in est])).as_quat()  # x y z w
+        return GroundTruth(np.array([f.t_ns for f in est], np.int64),
+                           np.stack([f.position for f in est]), q[:, [3, 0, 1, 2]],
+                           velocity=np.stack([f.velocity for f in est]),
+                           bias_gyro=np.stack([f.bias_gyro for f in est]),
+                           bias_accel=np.stack([f.bias_accel for f in est]))
+
+    def timings(self) -> dict[str, np.ndarray]:
+        """Milliseconds per frame of each stage (frames after the first, which compiles)."""
+        keys = ("frontend", "solve", "marginalize", "total")
+        rows = [f.timings for f in self.frames[1:] if f.timings]
+        return {k: np.array([r.get(k, 0.0) for r in rows]) for k in keys}
+
+    def flags(self) -> dict[str, np.ndarray]:
+        """Per-frame ``keyframe``, ``reset`` (bool), ``tracked``, ``stereo``, ``landmarks``
+        (int) and ``status`` (str)."""
+        return {
+            "keyframe": np.array([f.keyframe for f in self.frames]),
+            "reset": np.array([f.status == "reset" for f in self.frames]),
+            "tracked": np.array([f.tracked for f in self.frames]),
+            "stereo": np.array([f.stereo for f in self.frames]),
+            "landmarks": np.array([f.landmarks for f in self.frames]),
+            "status": np.array([f.status for f in self.frames]),
+        }
+
+
+def stereo_pairs(sequence: Sequence, left: str = "cam0", right: str = "cam1"
+                 ) -> list[tuple[int, int, int | None]]:
+    """``(t_ns, left index, right index or None)`` for every left frame, in time order."""
+    cam0 = sequence.camera(left)
+    t_r = sequence.cameras[right].t_ns if right in sequence.cameras else np.zeros(0, np.int64)
+    out = []
+    for i, t in enumerate(cam0.t_ns):
+        j = int(np.searchsorted(t_r, t))
+        best = None
+        for k in (j - 1, j):
+            if 0 <= k < len(t_r) and abs(int(t_r[k]) - int(t)) <= PAIR_TOLERANCE_NS:
+                best = k
+        out.append((int(t), i, best))
+    return out
+
+
+def _corrected_imu(imu: ImuData, offset: np.ndarray) -> ImuData:
+    if not np.any(offset):
+        return imu
+    gyro, accel = remove_offset(imu.gyro, imu.accel, offset)
+    return dataclasses.replace(imu, gyro=np.asarray(gyro, np.float64),
+                               accel=np.asarray(accel, np.float64))
+
+
+def run_vio(sequence: Sequence, config: EstimatorConfig | None = None,
+            imu_offset=None, *, show_progress: bool = False, max_frames: int | None = None,
+            left: str = "cam0", right: str = "cam1") -> VioResult:
+    """Stereo VIO over ``sequence``.
+
+    Args:
+        sequence: with an IMU stream, its calibration and two cameras.
+        config: the estimator's settings (default :class:`EstimatorConfig`).
+        imu_offset: (6,) constant IMU offset (gyro rad/s, accel m/s^2) subtracted from every
+            sample first (the calibrator's output); ``None``: none.
+        show_progress: a progress bar on stderr.  max_frames: stop after this many frames.
+
+    Raises:
+        DataError: no IMU, no IMU calibration, or a camera missing.
+    """
+    name = sequence.name
+    if sequence.imu is None or len(sequence.imu) < 2 or sequence.imu_calibration is None:
+        raise DataError(f"{name}: the VIO needs an IMU stream and its calibration")
+    for cam in (left, right):
+        if cam not in sequence.cameras:
+            raise DataError(f"{name}: no camera {cam!r} (the VIO is stereo: "
+                            f"{left!r} and {right!r})")
+    offset = np.zeros(6) if imu_offset is None else np.asarray(imu_offset, np.float64).reshape(6)
+    if not np.all(np.isfinite(offset)):
+        raise DataError(f"the IMU offset must be finite, got {offset.tolist()}")
+    cam0, cam1 = sequence.camera(left), sequence.camera(right)
+    vio = StereoVio(cam0.calibration, cam1.calibration, sequence.imu_calibration,
+                    _corrected_imu(sequence.imu, offset), config)
+    pairs = stereo_pairs(sequence, left, right)
+    if max_frames is not None:
+        pairs = pairs[:max_frames]
+    frames, unreadable = [], 0
+    bar = progress(pairs, desc=f"vio {name}", enabled=show_progress, unit="frame")
+    for t_ns, i, j in bar:
+        try:
+            img_l = cam0.load(i)
+        except (DataError, OSError) as exc:
+            unreadable += 1
+            warnings.warn(f"{exc}; processed as a dropped frame", DataRepairWarning,
+                          stacklevel=2)
+            img_l = None
+        try:
+            img_r = cam1.load(j) if j is not None else None
+        except (DataError, OSError):
+            img_r = None
+        frames.append(vio.process(t_ns, img_l, img_r))
+        bar.set_postfix_str(f"{frames[-1].status} kf={int(frames[-1].keyframe)} "
+                            f"lm={frames[-1].landmarks}", refresh=False)
+    return VioResult(frames, vio.resets, unreadable, vio.config, offset)
