@@ -208,7 +208,7 @@ def test_demo_json_keep(capsys, tmp_path):
     code, out, err = _run(capsys, "demo", "--json", "--keep", str(keep))
     assert code == 0, err
     result = json.loads(out.strip().splitlines()[-1])
-    assert [k for k in result if k != "seconds"] == ["simulate", "read", "calibrate"]
+    assert [k for k in result if k != "seconds"] == ["simulate", "read", "calibrate", "vio"]
     summary = result["read"]
     assert set(summary["cameras"]) == {"cam0", "cam1"}
     assert set(summary["depth"]) == {"depth0", "depth1"}
@@ -226,6 +226,10 @@ def test_demo_json_keep(capsys, tmp_path):
     assert any(abs(v) > 0 for v in recorded)
     np.testing.assert_allclose(calib["estimated"][:3], recorded[:3], atol=2e-3)  # rad/s
     np.testing.assert_allclose(calib["estimated"][3:], recorded[3:], atol=2e-2)  # m/s^2
+    # The VIO step tracks the whole flight with that offset removed, against the ground truth
+    vio = result["vio"]
+    assert vio["poses"] == vio["frames"] == 61 and vio["nan_poses"] == 0
+    assert vio["ate_m"]["rmse"] < 0.05
 
 
 def test_rgb_frames_small_resolution(capsys, tmp_path):

@@ -1,0 +1,105 @@
+"""Benchmark the whole stereo VIO: milliseconds per 752x480 stereo frame after warm-up.
+
+Runs :class:`uavcal_jax.vio.estimator.StereoVio` (default :class:`EstimatorConfig`) over the
+stereo frames of a sequence -- by default the real ``../shared/data/euroc_v101_micro`` (95
+frames of V1_01, a hover), optionally any EuRoC folder (``--sequence``, e.g. a simulated
+flight from ``uavcal simulate``). Images are decoded before timing (decoding is not the VIO's
+work). The sequence is played ``--passes`` times with a fresh estimator each pass; the first
+pass compiles every jitted function and is reported apart (``compile_pass_s``), the others
+are timed per frame from the estimator's own stage clocks (``FrameEstimate.timings``):
+``frontend`` (IMU interval, preintegration, tracking), ``solve`` (insert, structured solve,
+pruning), ``marginalize`` (the slide: drop or marginalisation) and ``total``; mean, median
+and 95th percentile of each. The 1-minute load average before and after is recorded: on a
+shared, oversubscribed CPU the wall-clock figures include other processes' time.
+
+The last line printed is one JSON object.
+
+Usage::
+
+    python experiments/bench_vio.py
+    python experiments/bench_vio.py --sequence /tmp/sim/V1_02 --passes 2 --max-frames 200
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from uavcal_jax.argtypes import positive_int, print_json
+from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.vio.estimator import StereoVio
+from uavcal_jax.vio.estimator_config import EstimatorConfig
+from uavcal_jax.vio.run import stereo_pairs
+
+DEFAULT_SEQUENCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / \
+    "euroc_v101_micro"
+STAGES = ("frontend", "solve", "marginalize", "total")
+
+
+def _stats(values) -> dict:
+    v = np.asarray(values, np.float64)
+    return {"mean": float(v.mean()), "median": float(np.median(v)),
+            "p95": float(np.percentile(v, 95))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sequence", type=Path, default=DEFAULT_SEQUENCE)
+    ap.add_argument("--passes", type=positive_int, default=3,
+                    help="plays of the sequence; the first compiles [default: 3]")
+    ap.add_argument("--max-frames", type=positive_int, default=None)
+    args = ap.parse_args()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        seq = read_euroc(args.sequence)
+    pairs = stereo_pairs(seq)[:args.max_frames]
+    cam0, cam1 = seq.camera("cam0"), seq.camera("cam1")
+    images = [(t, cam0.load(i), cam1.load(j) if j is not None else None) for t, i, j in pairs]
+    config = EstimatorConfig()
+    load_before = os.getloadavg()[0]
+    per_stage = {k: [] for k in STAGES}
+    compile_s = None
+    keyframes = resets = 0
+    for p in range(args.passes):
+        vio = StereoVio(cam0.calibration, cam1.calibration, seq.imu_calibration, seq.imu, config)
+        t0 = time.perf_counter()
+        frames = [vio.process(t, left, right) for t, left, right in images]
+        wall = time.perf_counter() - t0
+        if p == 0:
+            compile_s = wall
+            continue
+        keyframes += sum(f.keyframe for f in frames)
+        resets += vio.resets
+        for f in frames[1:]:  # frame 0 initialises
+            for k in STAGES:
+                per_stage[k].append(f.timings.get(k, 0.0))
+    timed = len(per_stage["total"])
+    out = {
+        "sequence": str(args.sequence), "frames": len(images), "frames_timed": timed,
+        "passes": args.passes, "compile_pass_s": compile_s,
+        "keyframes_per_pass": keyframes / max(args.passes - 1, 1),
+        "resets": resets,
+        **{f"{k}_ms": _stats(v) for k, v in per_stage.items() if v},
+        "load_avg_1min": [load_before, os.getloadavg()[0]],
+        "cpu_count": os.cpu_count(), "machine": platform.machine(),
+        "config": {"keyframes": config.keyframes, "landmarks": config.landmarks,
+                   "observations": config.observations,
+                   "max_iterations": config.solver.max_iterations,
+                   "max_features": config.frontend.max_features},
+    }
+    if timed:
+        print(f"{timed} frames: mean {out['total_ms']['mean']:.1f} ms, "
+              f"p95 {out['total_ms']['p95']:.1f} ms per stereo frame "
+              f"(front end {out['frontend_ms']['mean']:.1f}, solve {out['solve_ms']['mean']:.1f}, "
+              f"marginalisation {out['marginalize_ms']['mean']:.1f})")
+    print_json(out)
+
+
+if __name__ == "__main__":
+    main()
