@@ -120,7 +120,7 @@ def _show_vio(result: dict[str, Any]) -> str:
         text += f"\n      time per frame: mean {ms['mean']:.1f} ms (the first frames compile)"
     if "ate_m" in result:
         text += (f"\n      ATE rmse {result['ate_m']['rmse']:.3f} m against the ground truth "
-                 f"(SE(3) alignment)")
+                 f"({result['ate_m']['alignment']} alignment)")
     return text
 
 
