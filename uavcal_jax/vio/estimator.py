@@ -46,6 +46,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from uavcal_jax.data.sequence import CameraCalibration, ImuCalibration, ImuData
 from uavcal_jax.errors import DataError
@@ -75,12 +76,14 @@ from uavcal_jax.vio.window_ops import (
     window_summary,
 )
 
-__all__ = ["STATUSES", "FrameEstimate", "StereoVio"]
+__all__ = ["STATUSES", "FrameEstimate", "StereoVio", "TrackedFrame"]
 
 #: ``FrameEstimate.status`` values.
 STATUSES = ("waiting", "initialized", "tracking", "coasting", "reset", "no_imu")
 # IMU samples further apart than this many nominal periods are a gap the window cannot bridge
 _IMU_GAP_PERIODS = 5.0
+# padded row of one frame-to-frame interval (20 Hz frames, 200 Hz IMU: 11 samples)
+_FRAME_SAMPLES = 32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,6 +130,20 @@ class FrameEstimate:
     timings: dict = dataclasses.field(default_factory=dict)
 
 
+@dataclasses.dataclass(frozen=True)
+class TrackedFrame:
+    """The front end's output for one frame (:meth:`StereoVio.track`), the back end's input.
+
+    Attributes:
+        t_ns: frame time, ns.  features: the tracker's :class:`FrameFeatures`.
+        frontend_ms: milliseconds the stage took.
+    """
+
+    t_ns: int
+    features: FrameFeatures
+    frontend_ms: float
+
+
 @dataclasses.dataclass
 class _Nav:
     """Host copy of a navigation state with its biases (float64 NumPy)."""
@@ -140,12 +157,17 @@ class _Nav:
 
 
 def _keyframe(nav: _Nav) -> Keyframes:
-    return Keyframes(*(jnp.asarray(x) for x in (nav.R, nav.p, nav.v, nav.bg, nav.ba)))
+    # NumPy leaves: jitted callees convert them in one go (an eager jnp.asarray per leaf
+    # costs a dispatch each)
+    return Keyframes(nav.R, nav.p, nav.v, nav.bg, nav.ba)
 
 
 def _slot_nav(state, slot: int, t_ns: int) -> _Nav:
-    f = jax.tree_util.tree_map(lambda x: np.asarray(x[slot]), state.frames)
-    return _Nav(t_ns, f.rotation, f.position, f.velocity, f.bias_gyro, f.bias_accel)
+    # one transfer of the (small) keyframe arrays, indexed on the host: eager device
+    # indexing costs a dispatch per leaf
+    f = jax.device_get(state.frames)
+    return _Nav(t_ns, *(np.array(x[slot]) for x in (f.rotation, f.position, f.velocity,
+                                                     f.bias_gyro, f.bias_accel)))
 
 
 _predict = jax.jit(predict)
@@ -182,6 +204,10 @@ class StereoVio:
                                       jnp.asarray(T[:, :3, 3]))
         self.resets = 0
         self._last_good: _Nav | None = None
+        # the front end's own view: its previous frame and the newest gyro bias the back end
+        # published (one frame old when the stages run concurrently; it only seeds the flow)
+        self._fe_t_ns: int | None = None
+        self._fe_bias_gyro = np.zeros(3)
         self._clear_window()
 
     # --- window bookkeeping ---------------------------------------------------------------
@@ -217,29 +243,53 @@ class StereoVio:
 
     def _interval(self, t0_ns: int, t1_ns: int):
         """Samples of ``[t0, t1]`` padded to the window's capacity, or a reason string."""
-        try:
-            iv = interval_samples(self.imu, t_start=t0_ns, t_end=t1_ns)
-        except DataError:
+        iv = self._raw_interval(t0_ns, t1_ns)
+        if iv is None:
             return "no_imu"
         if iv.dt.max() > _IMU_GAP_PERIODS * self.imu_period:
             return "imu_gap"
-        S = self.config.imu_samples
-        if len(iv.dt) > S:
-            return "imu_gap"
         n = len(iv.dt)
+        if n > self.config.imu_samples:
+            return "imu_gap"
+        # the per-frame preintegration scans a short row; a long interval (dropped frames)
+        # takes the window's full row
+        S = _FRAME_SAMPLES if n <= _FRAME_SAMPLES else self.config.imu_samples
         dt = np.full(S, self.imu_period)
         gyro = np.zeros((S, 3))
         accel = np.zeros((S, 3))
         mask = np.zeros(S, bool)
         dt[:n], gyro[:n], accel[:n], mask[:n] = iv.dt, iv.gyro, iv.accel, True
-        return ImuSamples(*(jnp.asarray(x) for x in (dt, gyro, accel, mask)))
+        return ImuSamples(dt, gyro, accel, mask)
+
+    def _raw_interval(self, t0_ns: int, t1_ns: int):
+        """:func:`~uavcal_jax.imu.interval_samples` of ``[t0, t1]`` on the few samples around it
+        (validating the whole stream every frame would cost more than integrating), or
+        ``None`` when the interval is not inside the stream."""
+        t = self.imu.t_ns
+        lo = max(int(np.searchsorted(t, t0_ns, side="right")) - 1, 0)
+        hi = min(int(np.searchsorted(t, t1_ns, side="left")) + 1, len(t))
+        try:
+            return interval_samples(t[lo:hi], self.imu.gyro[lo:hi], self.imu.accel[lo:hi],
+                                    t0_ns, t1_ns)
+        except DataError:
+            return None
+
+    def _full_row(self, row: ImuSamples) -> ImuSamples:
+        """``row`` padded to the window's ``imu_samples`` (what merging intervals needs)."""
+        S = self.config.imu_samples
+        n = row.dt.shape[0]
+        if n == S:
+            return row
+        return ImuSamples(np.pad(row.dt, (0, S - n), constant_values=self.imu_period),
+                          np.pad(row.gyro, ((0, S - n), (0, 0))),
+                          np.pad(row.accel, ((0, S - n), (0, 0))),
+                          np.pad(row.mask, (0, S - n)))
 
     def _propagate(self, nav: _Nav, row: ImuSamples, t_ns: int):
         """``(pim, nav at t_ns)`` by preintegration at ``nav``'s biases."""
-        pim = preintegrate_padded(row.dt, row.gyro, row.accel, row.mask, jnp.asarray(nav.bg),
-                                  jnp.asarray(nav.ba), self.noise, self.config.imu_samples)
-        out = _predict(NavState(jnp.asarray(nav.R), jnp.asarray(nav.p), jnp.asarray(nav.v)),
-                       pim)
+        pim = preintegrate_padded(row.dt, row.gyro, row.accel, row.mask, nav.bg, nav.ba,
+                                  self.noise, row.dt.shape[0])
+        out = _predict(NavState(nav.R, nav.p, nav.v), pim)
         R, p, v = (np.asarray(x) for x in (out.rotation, out.position, out.velocity))
         return pim, _Nav(t_ns, R, p, v, nav.bg.copy(), nav.ba.copy())
 
@@ -298,16 +348,42 @@ class StereoVio:
             o_slot[n_obs], o_lm[n_obs], o_cam[n_obs], o_xy[n_obs] = free_obs[n_obs], lid, cam, xy
             n_obs += 1
         self.obs_used[o_slot[:n_obs]] = True
-        arrays = (lm_slot, lm_bearing, lm_inv, o_slot, o_lm, o_cam, o_xy)
-        return tuple(jnp.asarray(a) for a in arrays), n_lm
+        return (lm_slot, lm_bearing, lm_inv, o_slot, o_lm, o_cam, o_xy), n_lm
 
     # --- the frame ------------------------------------------------------------------------
 
     def process(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None
                 ) -> FrameEstimate:
-        """Process one stereo frame (either image may be ``None``: a dropped frame)."""
+        """Process one stereo frame (either image may be ``None``: a dropped frame):
+        :meth:`track` then :meth:`update`."""
+        return self.update(self.track(t_ns, img_left, img_right))
+
+    def track(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None
+              ) -> TrackedFrame:
+        """The front end of one frame: the gyro rotation since the previous frame (at the
+        newest published gyro bias) seeds the optical flow. Touches only the tracker and the
+        front end's own state, so it may run in another thread than :meth:`update` (one
+        frame ahead of it: OpenCV and XLA release the GIL)."""
+        t_ns = int(t_ns)
+        t0 = time.perf_counter()
+        R_gyro = None
+        if self._fe_t_ns is not None and t_ns > self._fe_t_ns:
+            iv = self._raw_interval(self._fe_t_ns, t_ns)
+            if iv is not None:
+                R_gyro = np.eye(3)
+                for dt, w in zip(iv.dt, iv.gyro - self._fe_bias_gyro, strict=True):
+                    R_gyro = R_gyro @ Rotation.from_rotvec(w * dt).as_matrix()
+        self._fe_t_ns = t_ns
+        feats = self.tracker.track(t_ns * 1e-9, img_left, img_right, R_gyro)
+        return TrackedFrame(t_ns, feats, 1e3 * (time.perf_counter() - t0))
+
+    def update(self, frame: TrackedFrame) -> FrameEstimate:
+        """The back end of one frame (:meth:`track`'s output, in time order)."""
         with jax.enable_x64(True):
-            return self._process(int(t_ns), img_left, img_right)
+            est = self._update(frame)
+        if est.has_pose:
+            self._fe_bias_gyro = np.asarray(est.bias_gyro, np.float64)
+        return est
 
     def _estimate(self, nav: _Nav | None, status: str, t_ns: int, **kw) -> FrameEstimate:
         if nav is None:
@@ -316,20 +392,20 @@ class StereoVio:
                                  status, **kw)
         return FrameEstimate(t_ns, True, nav.R, nav.p, nav.v, nav.bg, nav.ba, status, **kw)
 
-    def _process(self, t_ns: int, img_left, img_right) -> FrameEstimate:
+    def _update(self, frame: TrackedFrame) -> FrameEstimate:
         clock = time.perf_counter
         t_start = clock()
+        t_ns, feats = frame.t_ns, frame.features
+        fe_ms = frame.frontend_ms
         if self.n < 0:
-            return self._initialize(t_ns, img_left, img_right, t_start)
+            return self._initialize(t_ns, feats, fe_ms, t_start)
 
         prev = _slot_nav(self.state, self.n, self.slot_t[self.n])
         row = self._interval(prev.t_ns, t_ns)
         if isinstance(row, str):
-            return self._fail(row, t_ns, None, t_start, {})
+            return self._fail(row, t_ns, None, t_start, {"frontend": fe_ms}, feats)
         pim, pred = self._propagate(prev, row, t_ns)
-        R_prev_cur = np.asarray(pim.delta_R)
-        feats = self.tracker.track(t_ns * 1e-9, img_left, img_right, R_prev_cur)
-        t_fe = clock()
+        row = self._full_row(row)
         R_kf_cur = body_to_camera_rotation(self.kf_R.T @ pred.R, self.R_BC0)
         dec = keyframe_decision(self.kf_features.ids, self.kf_features.xy, feats.ids, feats.xy,
                                 feats.mask, R_kf_cur, self.config.keyframe)
@@ -352,7 +428,7 @@ class StereoVio:
         self.slot_kf.append(is_kf)
         est = _slot_nav(self.state, s, t_ns)
         t_solve = clock()
-        timings = {"frontend": 1e3 * (t_fe - t_start), "solve": 1e3 * (t_solve - t_fe)}
+        timings = {"frontend": fe_ms, "solve": 1e3 * (t_solve - t_start)}
 
         self.blind = self.blind + 1 if active < self.config.limits.min_landmarks else 0
         failure = self._failure(est, pred, float(info.cost_final), active)
@@ -365,7 +441,8 @@ class StereoVio:
         if not self.filled_once and self.n >= self.config.keyframes - 2:
             self._refine_gyro_bias()
         t_end = clock()
-        timings |= {"marginalize": 1e3 * (t_end - t_solve), "total": 1e3 * (t_end - t_start)}
+        timings |= {"marginalize": 1e3 * (t_end - t_solve),
+                    "total": fe_ms + 1e3 * (t_end - t_start)}
         self._last_good = est
         status = "tracking" if active >= self.config.limits.min_landmarks else "coasting"
         return self._estimate(est, status, t_ns, reason=reason, keyframe=is_kf,
@@ -396,7 +473,7 @@ class StereoVio:
 
     def _fail(self, reason: str, t_ns: int, pred: _Nav | None, t_start: float, timings: dict,
               feats: FrameFeatures | None = None) -> FrameEstimate:
-        """Reset: keep the IMU-propagated state, clear the window, restart tracking."""
+        """Reset: keep the IMU-propagated state and clear the window."""
         nav = pred
         if nav is None and self._last_good is not None and reason != "no_imu":
             # the interval could not be integrated (a gap): hold the last velocity across it
@@ -407,11 +484,11 @@ class StereoVio:
             return self._estimate(None, "no_imu", t_ns)
         self.resets += 1
         self._last_good = nav
-        self.tracker.reset()
+        # the tracker keeps its corners (they start new landmarks): it may already be a frame
+        # ahead in the front-end thread
         self._clear_window()
-        timings = dict(timings)
-        timings.setdefault("marginalize", 0.0)
-        timings["total"] = 1e3 * (time.perf_counter() - t_start)
+        timings = {"frontend": 0.0, "solve": 0.0, "marginalize": 0.0, **timings}
+        timings["total"] = timings["frontend"] + 1e3 * (time.perf_counter() - t_start)
         return self._estimate(nav, "reset", t_ns, reason=reason,
                               tracked=0 if feats is None else feats.n_tracked,
                               stereo=0 if feats is None else feats.n_stereo, timings=timings)
@@ -457,7 +534,8 @@ class StereoVio:
                                          self.config.solver)
         self.filled_once = True
 
-    def _initialize(self, t_ns: int, img_left, img_right, t_start: float) -> FrameEstimate:
+    def _initialize(self, t_ns: int, feats: FrameFeatures, fe_ms: float, t_start: float
+                    ) -> FrameEstimate:
         """Start a window at this frame when it has enough stereo landmarks."""
         cfg = self.config
         nav = None
@@ -469,8 +547,6 @@ class StereoVio:
                 nav = _Nav(t_ns, g.R, g.p + g.v * dt, g.v, g.bg, g.ba)
             else:
                 _, nav = self._propagate(self._last_good, row, t_ns)
-        feats = self.tracker.track(t_ns * 1e-9, img_left, img_right)
-        t_fe = time.perf_counter()
         depth = np.full(len(feats.mask), np.nan)
         if feats.stereo_mask.any():
             depth[feats.stereo_mask] = triangulate_stereo(
@@ -482,9 +558,9 @@ class StereoVio:
             status = "coasting" if nav is not None else "waiting"
             return self._estimate(nav, status, t_ns, tracked=feats.n_tracked,
                                   stereo=feats.n_stereo,
-                                  timings={"frontend": 1e3 * (t_fe - t_start), "solve": 0.0,
-                                           "marginalize": 0.0,
-                                           "total": 1e3 * (t_fe - t_start)})
+                                  timings={"frontend": fe_ms, "solve": 0.0, "marginalize": 0.0,
+                                           "total": fe_ms + 1e3 * (time.perf_counter()
+                                                                   - t_start)})
         first = nav is None
         if first:
             try:
@@ -499,7 +575,7 @@ class StereoVio:
         prior = gauge_prior(frames, N, cfg.prior)
         self.problem = dataclasses.replace(self.problem, prior=prior)
         self.state = dataclasses.replace(self.state, frames=frames)
-        dummy = jax.tree_util.tree_map(lambda x: x[0], self.problem.imu.pim)
+        dummy = jax.tree_util.tree_map(lambda x: x[0], self.problem.imu.pim)  # unused: slot 0
         row0 = jax.tree_util.tree_map(lambda x: x[0], self.samples)
         self.state, self.problem, self.samples = insert_frame(
             self.state, self.problem, self.samples, 0, _keyframe(nav), dummy, row0, *upd)
@@ -513,6 +589,6 @@ class StereoVio:
         return self._estimate(nav, "initialized", t_ns, reason="first", keyframe=True,
                               tracked=feats.n_tracked, stereo=feats.n_stereo,
                               landmarks=int(np.sum(self.lm_used)),
-                              timings={"frontend": 1e3 * (t_fe - t_start),
-                                       "solve": 1e3 * (t_end - t_fe), "marginalize": 0.0,
-                                       "total": 1e3 * (t_end - t_start)})
+                              timings={"frontend": fe_ms, "solve": 1e3 * (t_end - t_start),
+                                       "marginalize": 0.0,
+                                       "total": fe_ms + 1e3 * (t_end - t_start)})

@@ -254,6 +254,7 @@ def _shift_oldest(state, problem, H, b, config):
     return WindowState(frames, state.inv_depth), new_problem
 
 
+@jax.jit
 def slide_imu_samples(samples: ImuSamples) -> ImuSamples:
     """The raw samples shifted as :func:`marginalize_oldest` shifts the intervals (interval 0
     leaves, the last one is freed with its mask cleared)."""
@@ -342,9 +343,11 @@ def _drop_second_newest(state, problem, samples, noise, params, config):
     merged, fits = _merge_samples(samples, k - 1)
     pim = problem.imu.pim
     first = jax.tree_util.tree_map(lambda x: x[k - 1], pim)
+    # unrolled: the scan's per-step overhead, not its arithmetic, is the cost on XLA:CPU
+    # (160 samples: 8.8 ms at unroll 1, 3.3 ms at 4, 5.7 ms at 8; the result does not change)
     new = preintegrate(merged.dt, merged.gyro, merged.accel, first.bias_gyro, first.bias_accel,
                        mask=merged.mask, noise=noise, scheme=pim.scheme,
-                       bias_covariance=pim.cov.shape[-1] == 15)
+                       bias_covariance=pim.cov.shape[-1] == 15, unroll=4)
     new = dataclasses.replace(new, valid=new.valid & fits)
     ivals = jnp.arange(N - 1)
     isrc = jnp.where(ivals >= k, jnp.minimum(ivals + 1, N - 2), ivals)

@@ -42,7 +42,7 @@ def preintegrate_padded(dt, gyro, accel, mask, bias_gyro, bias_accel, noise: Imu
     """:func:`~uavcal_jax.imu.preintegrate` on ``(S,)``-padded samples (jitted; ``capacity``
     only names the static shape in the cache key)."""
     del capacity
-    return preintegrate(dt, gyro, accel, bias_gyro, bias_accel, mask=mask, noise=noise)
+    return preintegrate(dt, gyro, accel, bias_gyro, bias_accel, mask=mask, noise=noise, unroll=4)
 
 
 def empty_window(n_frames: int, n_landmarks: int, n_obs: int, n_samples: int,
