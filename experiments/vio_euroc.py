@@ -43,8 +43,9 @@ from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.tum import read_tum
 from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.simulate import simulate
-from uavcal_jax.vio import ate, plot_trajectories, rpe
+from uavcal_jax.vio import plot_trajectories
 from uavcal_jax.vio.run import run_vio
+from uavcal_jax.vio.trajectory_metrics import trajectory_errors
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -84,21 +85,21 @@ def _evaluate(root: Path, label: str, out_dir: Path, progress: bool) -> dict:
     result = run_vio(seq, show_progress=progress)
     wall = time.perf_counter() - t0
     traj = result.trajectory()
-    a = ate(traj, seq.ground_truth)
-    r = rpe(traj, seq.ground_truth, delta=1.0, unit="m") if len(traj) > 20 else None
+    err = trajectory_errors(traj, seq.ground_truth)
     times = result.timings()["total"]
     png = plot_trajectories(traj, seq.ground_truth, out_dir / f"{label}.png",
-                            title=f"VIO on {label}")
+                            alignment=err["ate_m"]["alignment"], title=f"VIO on {label}")
     flags = result.flags()
     return {
         "sequence": label, "frames": len(result.frames), "poses": len(traj),
-        "ate_rmse_m": a.translation.rmse, "ate_max_m": a.translation.max,
-        "rpe_1m_m": None if r is None else r.translation.rmse,
+        "ate_rmse_m": err["ate_m"]["rmse"], "ate_max_m": err["ate_m"]["max"],
+        "alignment": err["ate_m"]["alignment"],
+        "rpe_1m_m": None if err["rpe_1m"] is None else err["rpe_1m"]["translation_rmse_m"],
         "mean_ms_per_frame": float(np.mean(times[5:])) if len(times) > 5 else None,
         "p95_ms_per_frame": float(np.percentile(times[5:], 95)) if len(times) > 5 else None,
         "keyframes": int(flags["keyframe"].sum()), "resets": result.resets,
         "nan_poses": int(np.sum(~np.isfinite(traj.position).all(axis=1))),
-        "diverged": bool(a.translation.max > 1.0), "wall_s": wall, "png": str(png),
+        "diverged": bool(err["ate_m"]["max"] > 1.0), "wall_s": wall, "png": str(png),
     }
 
 

@@ -76,7 +76,7 @@ def write_frames_csv(path: Path, frames) -> Path:
 
 def summarize(result, ground_truth) -> dict:
     """Counts, timings and, with ground truth, ATE/RPE of a :class:`VioResult`."""
-    from uavcal_jax.vio import ate, rpe
+    from uavcal_jax.vio.trajectory_metrics import trajectory_errors
 
     flags = result.flags()
     times = result.timings()
@@ -93,23 +93,7 @@ def summarize(result, ground_truth) -> dict:
         "imu_offset": result.imu_offset.tolist(),
     }
     if ground_truth is not None and len(traj) >= 3:
-        # a flight along a line (or a hover) leaves SE(3) alignment undetermined: then the
-        # trajectories are aligned at their first pose instead, and the summary says so
-        try:
-            a = ate(traj, ground_truth)
-            alignment = "se3"
-        except DataError:
-            a = ate(traj, ground_truth, alignment="origin")
-            alignment = "origin"
-        out["ate_m"] = {"rmse": a.translation.rmse, "mean": a.translation.mean,
-                        "max": a.translation.max, "matched": a.translation.count,
-                        "alignment": alignment}
-        try:
-            r = rpe(traj, ground_truth, delta=1.0, unit="m", alignment=alignment)
-            out["rpe_1m"] = {"translation_rmse_m": r.translation.rmse,
-                             "rotation_rmse_deg": r.rotation.rmse}
-        except DataError:  # a path shorter than 1 m has no pair
-            out["rpe_1m"] = None
+        out |= trajectory_errors(traj, ground_truth)
     return out
 
 
@@ -143,7 +127,8 @@ def run(args) -> int:
             raise DataError(f"{args.sequence}: --plot needs ground truth, and there is none")
         from uavcal_jax.vio import plot_trajectories
 
-        plot_trajectories(traj, gt, args.plot, title=f"VIO on {sequence.name}")
+        plot_trajectories(traj, gt, args.plot, title=f"VIO on {sequence.name}",
+                          alignment=summary.get("ate_m", {}).get("alignment", "se3"))
         summary["plot"] = str(args.plot)
     if args.json:
         print_json(summary)

@@ -56,7 +56,14 @@ from uavcal_jax.vio.solver import (
     gauss_newton_step,
     structured_solve,
 )
-from uavcal_jax.vio.trajectory_metrics import AteResult, RpeResult, ate, plot_trajectories, rpe
+from uavcal_jax.vio.trajectory_metrics import (
+    AteResult,
+    RpeResult,
+    ate,
+    plot_trajectories,
+    rpe,
+    trajectory_errors,
+)
 from uavcal_jax.vio.window import (
     DEFAULT_KEYFRAMES,
     CalibParams,
@@ -86,6 +93,7 @@ __all__ = [
     "keyframe_decision",
     "plot_trajectories",
     "rpe",
+    "trajectory_errors",
     "CalibParams",
     "CostConfig",
     "ImuFactors",

@@ -384,3 +384,28 @@ def plot_trajectories(estimate: Any, ground_truth: Any, path: str | Path, *,
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, format="png")
     return path
+
+
+def trajectory_errors(estimate: Any, ground_truth: Any, rpe_delta_m: float = 1.0) -> dict:
+    """ATE and RPE as a JSON-able summary, for the CLI and the experiments.
+
+    SE(3) alignment; a flight along a line (or a hover) leaves it undetermined, and then the
+    trajectories are aligned at their first pose instead (``"alignment": "origin"``). RPE over
+    ``rpe_delta_m`` metres of path is ``None`` when the path is shorter.
+    """
+    try:
+        a = ate(estimate, ground_truth)
+        alignment = "se3"
+    except DataError:
+        a = ate(estimate, ground_truth, alignment="origin")
+        alignment = "origin"
+    out = {"ate_m": {"rmse": a.translation.rmse, "mean": a.translation.mean,
+                     "max": a.translation.max, "matched": a.translation.count,
+                     "alignment": alignment}}
+    try:
+        r = rpe(estimate, ground_truth, delta=rpe_delta_m, unit="m", alignment=alignment)
+        out["rpe_1m"] = {"translation_rmse_m": r.translation.rmse,
+                         "rotation_rmse_deg": r.rotation.rmse}
+    except DataError:
+        out["rpe_1m"] = None
+    return out
