@@ -351,26 +351,31 @@ def plot_trajectories(estimate: Any, ground_truth: Any, path: str | Path, *,
     """Write a PNG of the aligned estimate against the truth: top view (x-y) and height (z).
 
     The estimate is associated and aligned as in :func:`ate` (whose RMSE goes in the title);
-    the full ground truth is drawn. Returns ``path``.
+    the ground truth is drawn over the estimate's time span (a short run on a long recording
+    would otherwise be lost in it). Returns ``path``.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    gt_all = as_trajectory(ground_truth, "ground truth")
-    result = ate(estimate, gt_all, alignment=alignment, max_diff_s=max_diff_s)
+    gt_full = as_trajectory(ground_truth, "ground truth")
+    result = ate(estimate, gt_full, alignment=alignment, max_diff_s=max_diff_s)
     est = result.aligned
+    span = (gt_full.t_ns >= est.t_ns[0]) & (gt_full.t_ns <= est.t_ns[-1])
+    if span.sum() < 2:
+        span = np.ones(len(gt_full.t_ns), bool)
+    gt_t, gt_p = gt_full.t_ns[span], gt_full.position[span]
     # Figure + Agg canvas directly: no pyplot global state, no display needed.
     fig = Figure(figsize=(11, 4.8), dpi=100)
     FigureCanvasAgg(fig)
     top, height = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.4]})
-    top.plot(gt_all.position[:, 0], gt_all.position[:, 1], "k-", lw=1.2, label="ground truth")
+    top.plot(gt_p[:, 0], gt_p[:, 1], "k-", lw=1.2, label="ground truth")
     top.plot(est.position[:, 0], est.position[:, 1], "r-", lw=1.0, label="estimate (aligned)")
-    top.plot(*gt_all.position[0, :2], "ko", ms=4)
+    top.plot(*gt_p[0, :2], "ko", ms=4)
     top.set(xlabel="x [m]", ylabel="y [m]", title="top view")
     top.set_aspect("equal", adjustable="datalim")
     top.legend(loc="best", fontsize=8)
-    t0 = gt_all.t_ns[0]
-    height.plot((gt_all.t_ns - t0) * 1e-9, gt_all.position[:, 2], "k-", lw=1.2,
+    t0 = gt_t[0]
+    height.plot((gt_t - t0) * 1e-9, gt_p[:, 2], "k-", lw=1.2,
                 label="ground truth")
     height.plot((est.t_ns - t0) * 1e-9, est.position[:, 2], "r-", lw=1.0,
                 label="estimate (aligned)")
