@@ -170,6 +170,13 @@ def _slot_nav(state, slot: int, t_ns: int) -> _Nav:
                                                      f.bias_gyro, f.bias_accel)))
 
 
+def _hold(nav: _Nav, t_ns: int) -> _Nav:
+    """``nav`` carried to ``t_ns`` at constant velocity: across an interval the IMU does not
+    cover (a gap), the one prediction left."""
+    dt = (t_ns - nav.t_ns) * 1e-9
+    return _Nav(t_ns, nav.R, nav.p + nav.v * dt, nav.v, nav.bg, nav.ba)
+
+
 _predict = jax.jit(predict)
 
 
@@ -476,10 +483,7 @@ class StereoVio:
         """Reset: keep the IMU-propagated state and clear the window."""
         nav = pred
         if nav is None and self._last_good is not None and reason != "no_imu":
-            # the interval could not be integrated (a gap): hold the last velocity across it
-            g = self._last_good
-            dt = (t_ns - g.t_ns) * 1e-9
-            nav = _Nav(t_ns, g.R, g.p + g.v * dt, g.v, g.bg, g.ba)
+            nav = _hold(self._last_good, t_ns)
         if reason == "no_imu" and self.n < 0:
             return self._estimate(None, "no_imu", t_ns)
         self.resets += 1
@@ -542,9 +546,7 @@ class StereoVio:
         if self._last_good is not None:
             row = self._interval(self._last_good.t_ns, t_ns)
             if isinstance(row, str):
-                g = self._last_good
-                dt = (t_ns - g.t_ns) * 1e-9
-                nav = _Nav(t_ns, g.R, g.p + g.v * dt, g.v, g.bg, g.ba)
+                nav = _hold(self._last_good, t_ns)
             else:
                 _, nav = self._propagate(self._last_good, row, t_ns)
         depth = np.full(len(feats.mask), np.nan)
