@@ -249,7 +249,8 @@ class StereoVio:
     # --- IMU ------------------------------------------------------------------------------
 
     def _interval(self, t0_ns: int, t1_ns: int):
-        """Samples of ``[t0, t1]`` padded to the window's capacity, or a reason string."""
+        """Samples of ``[t0, t1]`` padded to a short row (or to the window's ``imu_samples``
+        when longer), or the reason string ``"no_imu"`` / ``"imu_gap"``."""
         iv = self._raw_interval(t0_ns, t1_ns)
         if iv is None:
             return "no_imu"
@@ -310,8 +311,9 @@ class StereoVio:
 
     # --- landmarks and observations -------------------------------------------------------
 
-    def _measurements(self, feats: FrameFeatures, slot: int, allow_new: bool):
-        """Padded updates for :func:`insert_frame`: new landmarks and observations."""
+    def _measurements(self, feats: FrameFeatures):
+        """Padded updates for :func:`insert_frame`: observations of the corners whose landmark
+        is alive, a new landmark for every other stereo match with a sane depth."""
         cfg = self.config
         K = cfg.frontend.max_features
         L, M = cfg.landmarks, cfg.observations
@@ -337,7 +339,7 @@ class StereoVio:
             fid = int(feats.ids[i])
             lid = self.id_to_landmark.get(fid)
             if lid is None:
-                if not (allow_new and stereo[i] and good_depth[i]):
+                if not (stereo[i] and good_depth[i]):
                     continue
                 lid = next(free_lm, None)
                 if lid is None:
@@ -355,7 +357,7 @@ class StereoVio:
             o_slot[n_obs], o_lm[n_obs], o_cam[n_obs], o_xy[n_obs] = free_obs[n_obs], lid, cam, xy
             n_obs += 1
         self.obs_used[o_slot[:n_obs]] = True
-        return (lm_slot, lm_bearing, lm_inv, o_slot, o_lm, o_cam, o_xy), n_lm
+        return lm_slot, lm_bearing, lm_inv, o_slot, o_lm, o_cam, o_xy
 
     # --- the frame ------------------------------------------------------------------------
 
@@ -422,7 +424,7 @@ class StereoVio:
             is_kf, reason = True, "interval"
 
         s = self.n + 1
-        upd, _ = self._measurements(feats, s, allow_new=True)
+        upd = self._measurements(feats)
         self.state, self.problem, self.samples = insert_frame(
             self.state, self.problem, self.samples, s, _keyframe(pred), pim, row, *upd)
         self.state, info = structured_solve(self.state, self.problem, self.params,
@@ -570,7 +572,7 @@ class StereoVio:
             except ValueError:
                 return self._estimate(None, "waiting", t_ns, tracked=feats.n_tracked)
             nav = _Nav(t_ns, R0, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
-        upd, _ = self._measurements(feats, 0, allow_new=True)
+        upd = self._measurements(feats)
         N = cfg.keyframes
         frames = jax.tree_util.tree_map(
             lambda a, x: a.at[0].set(x), self.state.frames, _keyframe(nav))
