@@ -215,6 +215,7 @@ class StereoVio:
         # published (one frame old when the stages run concurrently; it only seeds the flow)
         self._fe_t_ns: int | None = None
         self._fe_bias_gyro = np.zeros(3)
+        self._depth_for: FrameFeatures | None = None
         self._clear_window()
 
     # --- window bookkeeping ---------------------------------------------------------------
@@ -311,6 +312,21 @@ class StereoVio:
 
     # --- landmarks and observations -------------------------------------------------------
 
+    def _stereo_depths(self, feats: FrameFeatures) -> tuple[np.ndarray, np.ndarray]:
+        """``(depth (K,) m, usable (K,) bool)`` of each corner's stereo triangulation (NaN
+        without a stereo match), memoised per frame: initialisation counts them and the
+        measurements use them."""
+        if self._depth_for is not feats:
+            depth = np.full(len(feats.mask), np.nan)
+            st = feats.stereo_mask
+            if st.any():
+                depth[st] = triangulate_stereo(feats.xy[st], feats.xy_right[st], self.T_C0C1)
+            cfg = self.config
+            self._depth_for = feats
+            self._depth = (depth, (depth >= cfg.min_stereo_depth)
+                           & (depth <= cfg.max_stereo_depth))
+        return self._depth
+
     def _measurements(self, feats: FrameFeatures):
         """Padded updates for :func:`insert_frame`: observations of the corners whose landmark
         is alive, a new landmark for every other stereo match with a sane depth."""
@@ -326,11 +342,7 @@ class StereoVio:
         o_xy = np.zeros((2 * K, 2))
         valid = np.flatnonzero(feats.mask)
         stereo = feats.stereo_mask
-        depth = np.full(len(feats.mask), np.nan)
-        if stereo.any():
-            depth[stereo] = triangulate_stereo(feats.xy[stereo], feats.xy_right[stereo],
-                                               self.T_C0C1)
-        good_depth = (depth >= cfg.min_stereo_depth) & (depth <= cfg.max_stereo_depth)
+        depth, good_depth = self._stereo_depths(feats)
         free_lm = iter(np.flatnonzero(~self.lm_used))
         free_obs = np.flatnonzero(~self.obs_used)
         n_lm = n_obs = 0
@@ -551,11 +563,7 @@ class StereoVio:
                 nav = _hold(self._last_good, t_ns)
             else:
                 _, nav = self._propagate(self._last_good, row, t_ns)
-        depth = np.full(len(feats.mask), np.nan)
-        if feats.stereo_mask.any():
-            depth[feats.stereo_mask] = triangulate_stereo(
-                feats.xy[feats.stereo_mask], feats.xy_right[feats.stereo_mask], self.T_C0C1)
-        n_good = int(np.sum((depth >= cfg.min_stereo_depth) & (depth <= cfg.max_stereo_depth)))
+        n_good = int(np.sum(self._stereo_depths(feats)[1]))
         if n_good < cfg.min_init_landmarks:
             if nav is not None:
                 self._last_good = nav
