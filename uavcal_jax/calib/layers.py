@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from uavcal_jax.calib.config import ModelConfig
+from uavcal_jax.calib.dropout import Dropout, attention
 
 __all__ = ["ACTIVATION_FNS", "LINEAR_INIT", "Decoder", "Encoder", "key_mask"]
 
@@ -54,7 +55,7 @@ class FeedForward(nn.Module):
         x = nn.Dense(c.ff_width, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
                      name="linear1")(x)
         x = ACTIVATION_FNS[c.activation](x)
-        x = nn.Dropout(c.dropout)(x, deterministic=deterministic)
+        x = Dropout(c.dropout)(x, deterministic=deterministic)
         return nn.Dense(c.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
                         name="linear2")(x)
 
@@ -63,7 +64,8 @@ def _attention(c: ModelConfig, name: str) -> nn.MultiHeadDotProductAttention:
     return nn.MultiHeadDotProductAttention(
         num_heads=c.heads, qkv_features=c.d_model, out_features=c.d_model,
         dropout_rate=c.dropout, broadcast_dropout=False, dtype=F32, param_dtype=F32,
-        kernel_init=nn.initializers.xavier_uniform(), out_kernel_init=LINEAR_INIT, name=name)
+        kernel_init=nn.initializers.xavier_uniform(), out_kernel_init=LINEAR_INIT,
+        attention_fn=attention, name=name)
 
 
 def _norm(c: ModelConfig, name: str) -> nn.LayerNorm:
@@ -71,30 +73,39 @@ def _norm(c: ModelConfig, name: str) -> nn.LayerNorm:
 
 
 class EncoderLayer(nn.Module):
-    """Self-attention + feed-forward on tokens ``(B, n, d)`` with key mask ``(B, n)``."""
+    """Self-attention + feed-forward on tokens ``(B, n, d)`` with key mask ``(B, n)``.
+
+    ``outputs``: compute only the first ``outputs`` rows of the result (``None``: all). Each
+    output row depends on all tokens through attention's keys and values, but the rest of
+    the layer (query, feed-forward, norms) is per row, so a caller that reads only the
+    first row of the last layer (the frame encoder's frame token) skips the others' cost:
+    the same numbers, about 40 % fewer operations in the frame encoder.
+    """
 
     config: ModelConfig
 
     @nn.compact
-    def __call__(self, x, valid, deterministic: bool):
+    def __call__(self, x, valid, deterministic: bool, outputs: int | None = None):
         c = self.config
-        drop = nn.Dropout(c.dropout)
+        drop = Dropout(c.dropout)
         attn = _attention(c, "self_attn")
         ff = FeedForward(c, name="ff")
         n1, n2 = _norm(c, "norm1"), _norm(c, "norm2")
-        mask = key_mask(x.shape[1], valid)
+        rows = slice(None) if outputs is None else slice(0, outputs)
+        mask = key_mask(x[:, rows].shape[1], valid)
 
-        def sa(y):
-            return drop(attn(y, y, mask=mask, deterministic=deterministic),
+        def sa(query, keys):
+            return drop(attn(query, keys, mask=mask, deterministic=deterministic),
                         deterministic=deterministic)
 
         def fb(y):
             return drop(ff(y, deterministic), deterministic=deterministic)
 
         if c.norm_first:
-            x = x + sa(n1(x))
+            y = n1(x)
+            x = x[:, rows] + sa(y[:, rows], y)
             return x + fb(n2(x))
-        x = n1(x + sa(x))
+        x = n1(x[:, rows] + sa(x[:, rows], x))
         return n2(x + fb(x))
 
 
@@ -107,7 +118,7 @@ class DecoderLayer(nn.Module):
     @nn.compact
     def __call__(self, x, memory, memory_valid, deterministic: bool):
         c = self.config
-        drop = nn.Dropout(c.dropout)
+        drop = Dropout(c.dropout)
         self_attn, cross_attn = _attention(c, "self_attn"), _attention(c, "cross_attn")
         ff = FeedForward(c, name="ff")
         n1, n2, n3 = _norm(c, "norm1"), _norm(c, "norm2"), _norm(c, "norm3")
@@ -133,14 +144,20 @@ class DecoderLayer(nn.Module):
 
 
 class Encoder(nn.Module):
-    """``config.layers`` encoder layers: tokens ``(B, n, d)``, key mask ``(B, n)`` or None."""
+    """``config.layers`` encoder layers: tokens ``(B, n, d)``, key mask ``(B, n)`` or None.
+
+    ``outputs``: only the first ``outputs`` rows of the last layer are computed and returned
+    (``(B, outputs, d)``; see :class:`EncoderLayer`)."""
 
     config: ModelConfig
 
     @nn.compact
-    def __call__(self, x, valid=None, *, deterministic: bool = True):
+    def __call__(self, x, valid=None, *, deterministic: bool = True,
+                 outputs: int | None = None):
+        last = self.config.layers - 1
         for i in range(self.config.layers):
-            x = EncoderLayer(self.config, name=f"layer{i}")(x, valid, deterministic)
+            x = EncoderLayer(self.config, name=f"layer{i}")(
+                x, valid, deterministic, outputs if i == last else None)
         return x
 
 

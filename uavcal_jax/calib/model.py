@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from uavcal_jax.calib.config import ModelConfig
+from uavcal_jax.calib.dropout import Dropout
 from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encoder
 from uavcal_jax.data.color import LUMA_WEIGHTS
 
@@ -109,7 +110,7 @@ class FrameEncoder(nn.Module):
         tokens = nn.Dense(c.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
                           name="patch_proj")(tokens)
         tokens = ACTIVATION_FNS[c.activation](tokens)
-        tokens = nn.Dropout(c.dropout)(tokens, deterministic=deterministic)
+        tokens = Dropout(c.dropout)(tokens, deterministic=deterministic)
         n_tok = tokens.shape[1]
         if c.frame_token == "learned":
             first = self.param("frame_token", _embedding_init, (1, 1, c.d_model), F32)
@@ -120,7 +121,8 @@ class FrameEncoder(nn.Module):
         if pos.shape[0] != n_tok:
             raise ValueError(f"frames give {tokens.shape[1]} tokens per frame, the model was "
                              f"built for {pos.shape[0]} (another frame or patch size)")
-        out = Encoder(c, name="spatial_encoder")(tokens + pos, deterministic=deterministic)
+        out = Encoder(c, name="spatial_encoder")(tokens + pos, deterministic=deterministic,
+                                                 outputs=1)  # only row 0 is read
         return out[:, 0]
 
 
@@ -150,8 +152,8 @@ class ImuReducer(nn.Module):
         x = nn.Dense(c.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
                      name="linear1")(imu.astype(F32))
         x = ACTIVATION_FNS[c.activation](x)
-        x = nn.Dropout(c.dropout)(x, deterministic=deterministic)
-        x = nn.Dropout(c.dropout)(x, deterministic=deterministic)  # eq. 8 has two
+        x = Dropout(c.dropout)(x, deterministic=deterministic)
+        x = Dropout(c.dropout)(x, deterministic=deterministic)  # eq. 8 has two
         x = nn.Dense(c.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
                      name="linear2")(x)
         x = x + _positions(self, "pos_imu", c.max_frames or n, n, c.d_model)
