@@ -40,9 +40,8 @@ import numpy as np
 
 from uavcal_jax.argtypes import print_json
 from uavcal_jax.data.euroc import read_euroc
-from uavcal_jax.data.tum import read_tum
+from uavcal_jax.sim.cache import cached_simulation, trajectory_span
 from uavcal_jax.sim.config import SimConfig
-from uavcal_jax.sim.simulate import simulate
 from uavcal_jax.vio import plot_trajectories
 from uavcal_jax.vio.run import run_vio
 from uavcal_jax.vio.trajectory_metrics import trajectory_errors
@@ -65,16 +64,10 @@ def _simulated(name: str, start: float, duration: float | None, ideal: bool, cac
                seed: int) -> Path:
     traj = TRAJECTORIES / f"{name}.txt"
     if duration is None:
-        gt = read_tum(traj)
-        duration = float((gt.t_ns[-1] - gt.t_ns[0]) * 1e-9) - start - 0.1
-    tag = f"{name}_s{start:g}_d{duration:.1f}_seed{seed}" + ("_ideal" if ideal else "")
-    out = cache / tag
-    if (out / "mav0").is_dir() and (out / "sim_config.json").is_file():
-        return out
-    cfg = SimConfig(trajectory=str(traj), start=start, duration=duration, seed=seed,
+        duration = trajectory_span(traj) - start - 0.1
+    cfg = SimConfig(trajectory=str(traj), start=start, duration=round(duration, 1), seed=seed,
                     depth=False, targets=False, ideal_camera=ideal)
-    simulate(cfg, out, progress=True, overwrite=True)
-    return out
+    return cached_simulation(cfg, cache, name + ("_ideal" if ideal else ""))
 
 
 def _evaluate(root: Path, label: str, out_dir: Path, progress: bool) -> dict:

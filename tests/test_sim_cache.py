@@ -1,0 +1,52 @@
+"""Cached simulations: rendered once, reused, a changed setting renders a new folder, a
+killed render leaves nothing that is mistaken for a recording; the calibrator's simulated
+sets cover each trajectory within its span."""
+
+import json
+
+import pytest
+from conftest import shared_path
+
+from uavcal_jax.calib.sim_sets import SimSetConfig, sequence_configs
+from uavcal_jax.data.tum import read_tum
+from uavcal_jax.sim.cache import cached_simulation, config_tag
+from uavcal_jax.sim.config import SimConfig
+
+TINY = SimConfig(duration=0.3, resolution=(32, 24), camera_rate_hz=10, depth=False,
+                 targets=False, seed=3)
+
+
+def test_rendered_once_then_reused_and_keyed_by_config(tmp_path):
+    first = cached_simulation(TINY, tmp_path, "tiny", progress=False)
+    stamp = (first / "sim_config.json").stat().st_mtime_ns
+    again = cached_simulation(TINY, tmp_path, "tiny", progress=False)
+    assert again == first and (again / "sim_config.json").stat().st_mtime_ns == stamp
+    assert json.loads((first / "sim_config.json").read_text())["config"]["seed"] == 3
+    # speed knobs do not change the output, so they share the folder; a seed does not
+    assert config_tag(SimConfig(**{**TINY.to_dict(), "resolution": (32, 24),
+                                   "png_workers": 1})) == config_tag(TINY)
+    other = SimConfig(**{**TINY.to_dict(), "resolution": (32, 24), "seed": 4})
+    assert cached_simulation(other, tmp_path, "tiny", progress=False) != first
+
+
+def test_a_killed_render_is_not_reused(tmp_path):
+    out = tmp_path / f"tiny_{config_tag(TINY)}"
+    (out / "mav0").mkdir(parents=True)  # a folder without sim_config.json: not complete
+    root = cached_simulation(TINY, tmp_path, "tiny", progress=False)
+    assert root == out and (root / "sim_config.json").is_file()
+    assert not list(tmp_path.glob(".*partial"))
+
+
+@pytest.mark.parametrize("family", ["euroc", "uzh_fpv"])
+def test_trajectory_sets_cover_each_trajectory(family):
+    folder = shared_path("trajectories", family)
+    configs = sequence_configs(SimSetConfig(family=family))
+    assert [n for n, _ in configs] == sorted(p.stem for p in folder.glob("*.txt"))
+    for _, cfg in configs:
+        gt = read_tum(cfg.trajectory)
+        span = (gt.t_ns[-1] - gt.t_ns[0]) * 1e-9
+        assert span - 0.2 <= cfg.duration <= span
+    capped = sequence_configs(SimSetConfig(family=family, max_duration=5.0))
+    assert all(cfg.duration == 5.0 for _, cfg in capped)
+    with pytest.raises(ValueError, match="unknown"):
+        sequence_configs(SimSetConfig(family=family, sequences=("nope",)))

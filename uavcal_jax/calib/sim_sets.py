@@ -1,0 +1,107 @@
+"""The calibrator's simulated data sets, rendered once into a cache and reused by every sweep.
+
+Three families (:data:`FAMILIES`):
+
+- ``"euroc"``: one sequence per EuRoC ground-truth trajectory in
+  ``../shared/data/trajectories/euroc/`` (11, real indoor MAV dynamics), over its whole length;
+- ``"uzh_fpv"``: the same for the 11 UZH-FPV trajectories (aggressive racing-drone flight);
+- ``"procedural"``: seeded procedural flights of the simulator (no data needed).
+
+Each sequence is a :func:`uavcal_jax.sim.cache.cached_simulation` (a folder per
+configuration, written atomically). Frames are rendered at :data:`RENDER_RESOLUTION`
+(half EuRoC's, the EuRoC lens scaled) and reach the model through the same resize as real
+frames (``WindowConfig.size``, ``INTER_AREA``); only cam0 is read. The IMU is EuRoC's
+ADIS16448 model with its turn-on biases, so the "clean" training IMU is as clean as a real
+one: the injected offset comes on top of an unknown bias, as in the paper.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from uavcal_jax.progress import progress as progress_bar
+from uavcal_jax.sim.cache import cached_simulation, trajectory_span
+from uavcal_jax.sim.config import SimConfig
+
+__all__ = ["FAMILIES", "RENDER_RESOLUTION", "SimSetConfig", "sequence_configs",
+           "simulated_set", "trajectory_dir"]
+
+FAMILIES = ("euroc", "uzh_fpv", "procedural")
+#: Render size of the cached sets (width, height): EuRoC's 752x480 halved.
+RENDER_RESOLUTION = (376, 240)
+#: ``../shared/data`` beside the checkout.
+SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+
+
+def trajectory_dir(family: str) -> Path:
+    """Folder of a family's TUM trajectories under ``../shared/data/trajectories``."""
+    return SHARED_DATA / "trajectories" / family
+
+
+@dataclass(frozen=True)
+class SimSetConfig:
+    """One simulated set.
+
+    Attributes:
+        family: one of :data:`FAMILIES`.
+        max_duration: seconds per sequence at most (``None``: each trajectory's whole
+            length; procedural flights need a value, default 30 s).
+        sequences: names to keep (trajectory file stems, or ``"proc_00"``...); ``None``: all.
+        count: procedural flights (``proc_00`` ... ``proc_{count-1}``).
+        resolution: render size.
+        color: ``"gray"`` or ``"rgb"`` (the RGB path).
+        seed: base seed (sequence ``i`` uses ``seed + i``).
+    """
+
+    family: str = "euroc"
+    max_duration: float | None = None
+    sequences: tuple[str, ...] | None = None
+    count: int = 8
+    resolution: tuple[int, int] = RENDER_RESOLUTION
+    color: str = "gray"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.family not in FAMILIES:
+            raise ValueError(f"family must be one of {FAMILIES}, got {self.family!r}")
+
+
+def sequence_configs(config: SimSetConfig) -> list[tuple[str, SimConfig]]:
+    """``(name, SimConfig)`` of every sequence of the set."""
+    base = dict(resolution=config.resolution, color=config.color, depth=False, targets=False)
+    out: list[tuple[str, SimConfig]] = []
+    if config.family == "procedural":
+        duration = 30.0 if config.max_duration is None else config.max_duration
+        for i in range(config.count):
+            out.append((f"proc_{i:02d}", SimConfig(duration=duration, seed=config.seed + i,
+                                                   **base)))
+    else:
+        files = sorted(trajectory_dir(config.family).glob("*.txt"))
+        if not files:
+            raise FileNotFoundError(f"no trajectories in {trajectory_dir(config.family)} "
+                                    "(needs ../shared/data beside the checkout)")
+        for i, path in enumerate(files):
+            # the last 0.1 s stays inside the file, whatever its rate
+            span = round(trajectory_span(path) - 0.1, 1)
+            duration = span if config.max_duration is None else min(span, config.max_duration)
+            out.append((path.stem, SimConfig(trajectory=str(path), duration=duration,
+                                             seed=config.seed + i, **base)))
+    if config.sequences is not None:
+        wanted = set(config.sequences)
+        unknown = wanted - {n for n, _ in out}
+        if unknown:
+            raise ValueError(f"unknown {config.family} sequences: {sorted(unknown)}")
+        out = [(n, c) for n, c in out if n in wanted]
+    return out
+
+
+def simulated_set(config: SimSetConfig, cache: str | Path, *, progress: bool = True
+                  ) -> list[Path]:
+    """The set's sequence folders under ``cache/<family>/``, rendering the missing ones."""
+    items: Sequence[tuple[str, SimConfig]] = sequence_configs(config)
+    root = Path(cache) / config.family
+    return [cached_simulation(cfg, root, name, progress=progress)
+            for name, cfg in progress_bar(items, desc=f"{config.family} set",
+                                          enabled=progress, unit="seq")]

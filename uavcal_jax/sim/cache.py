@@ -1,0 +1,54 @@
+"""Simulated recordings rendered once and reused: a folder per configuration.
+
+Sweeps (calibrator protocols and ablations, VIO tables) read the same simulated sequences many
+times; rendering them is the slow part. :func:`cached_simulation` keys a folder by a name and
+a hash of the full :class:`~uavcal_jax.sim.config.SimConfig`, so a changed setting renders a
+new folder instead of silently reusing a stale one, and writes it atomically (simulated into
+a temporary sibling, renamed when complete): a sweep killed mid-render leaves no half
+sequence behind, and a rerun renders only what is missing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+from uavcal_jax.data.tum import read_tum
+from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.simulate import SIM_CONFIG_FILE, simulate
+
+__all__ = ["cached_simulation", "config_tag", "trajectory_span"]
+
+
+def config_tag(config: SimConfig) -> str:
+    """8 hex digits identifying every field of ``config`` (the ``png_workers`` and
+    ``batch_size`` speed knobs excluded: they do not change the output)."""
+    fields = {k: v for k, v in config.to_dict().items() if k not in ("png_workers",
+                                                                      "batch_size")}
+    if fields.get("trajectory"):
+        fields["trajectory"] = Path(fields["trajectory"]).name
+    text = json.dumps(fields, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:8]
+
+
+def trajectory_span(path: str | Path) -> float:
+    """Seconds from a TUM trajectory file's first to its last pose."""
+    gt = read_tum(path)
+    return float((gt.t_ns[-1] - gt.t_ns[0]) * 1e-9)
+
+
+def cached_simulation(config: SimConfig, cache: str | Path, name: str, *,
+                      progress: bool = True) -> Path:
+    """The folder of ``config``'s recording under ``cache`` (``cache/<name>_<tag>``),
+    simulated first if it is not there yet."""
+    out = Path(cache) / f"{name}_{config_tag(config)}"
+    if (out / "mav0").is_dir() and (out / SIM_CONFIG_FILE).is_file():
+        return out
+    tmp = out.with_name(f".{out.name}.partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    simulate(config, tmp, progress=progress)
+    shutil.rmtree(out, ignore_errors=True)
+    tmp.rename(out)
+    return out
