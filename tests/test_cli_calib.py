@@ -14,11 +14,14 @@ import jax
 import numpy as np
 import pytest
 
+from uavcal_jax.calib.checkpoint import KINDS
 from uavcal_jax.calib.config import PROTOCOLS, CalibConfig, InjectionConfig, TrainConfig
-from uavcal_jax.calib.data import load_windows
+from uavcal_jax.calib.data import gather, load_windows
 from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig, restore_run
+from uavcal_jax.calib.train import eval_step_seeds
 from uavcal_jax.cli import build_parser, main
 from uavcal_jax.commands.calib import train_configs
+from uavcal_jax.data.offset_json import read_offset_json
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataRepairWarning
 from uavcal_jax.sim.config import SimConfig
@@ -54,8 +57,10 @@ def test_parser_defaults_are_the_dataclass_defaults():
                   "seeds": (TrainConfig().seeds, None), "epochs": (TrainConfig().epochs, None),
                   "set": ([], None)},
         "eval": {"data": (None, None)},
+        "predict": {"checkpoint": (None, None), "kind": ("best", KINDS), "inject": (None, None),
+                    "plot": (None, None)},
     }
-    free = {"help", "data", "out", "run", "resume", "stop_after", "json", "func"}
+    free = {"help", "data", "out", "run", "resume", "stop_after", "json", "func", "sequence"}
     parser = build_parser()
     for action, wanted in expected.items():
         options = {a.dest: a for a in _subparser(parser, "calib", action)._actions}
@@ -173,8 +178,47 @@ def test_loo_two_seeds_resume_and_eval(seqs, tmp_path, capsys):
     assert main(["calib", "eval", str(full), "--data", str(seqs / "seq1"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["trials"][0]["windows"] == 5
 
+    # predict: every window of a sequence through frame-token reuse equals the full model
+    _check_predict(full, seqs, tmp_path, capsys)
+
     # resuming with another model is refused in one line naming the difference
     assert _train(seqs, full, "--resume", "--set", "model.d_model=32") == 2
     _one_line(capsys, "model.d_model", full / "trial_00")
     assert main(["calib", "eval", str(tmp_path)]) == 2
     _one_line(capsys, str(tmp_path))
+
+
+def _check_predict(full, seqs, tmp_path, capsys):
+    inject = np.array([0.03, -0.02, 0.01, 0.2, -0.1, 0.05])
+    seq = tmp_path / "seq1"
+    shutil.copytree(seqs / "seq1", seq)
+    record = json.loads((seq / "sim_config.json").read_text())
+    record["config"]["imu_offset"] = [0.01] * 6  # the offset a simulated recording declares
+    (seq / "sim_config.json").write_text(json.dumps(record))
+    out, png = tmp_path / "offsets.json", tmp_path / "offsets.png"
+    trial = full / "trial_00"
+    assert main(["calib", "predict", "--checkpoint", str(trial), "--sequence", str(seq),
+                 "--inject", ",".join(map(str, inject)), "--out", str(out), "--plot", str(png),
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["windows"] == 5 and res["seeds"] == 2
+
+    # reference: the training code's eval step (full model on gathered windows, K seeds)
+    window = WindowConfig(duration=2, size=(64, 36))
+    parts = load_windows([seq], window)
+    state, seeds = restore_run(trial, parts)
+    batch = gather(parts, np.arange(5), state.config.model, "gyro")
+    batch["offset"] = np.broadcast_to(inject.astype(np.float32), (5, 6)).copy()
+    ref = np.asarray(eval_step_seeds(state, batch)["pred"]).mean(axis=0)
+    np.testing.assert_allclose(res["per_window"], ref, atol=2e-5)
+    np.testing.assert_allclose(res["offset"], np.median(ref, axis=0), atol=2e-5)
+    np.testing.assert_allclose(res["true"], inject + 0.01)
+    np.testing.assert_allclose(res["error"], np.asarray(res["offset"]) - res["true"])
+    np.testing.assert_allclose(read_offset_json(out), res["offset"])
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    assert main(["calib", "predict", "--checkpoint", str(full), "--sequence", str(seq)]) == 2
+    _one_line(capsys, "trial_00")
+    assert main(["calib", "predict", "--checkpoint", str(trial), "--sequence",
+                 str(tmp_path / "nope")]) == 2
+    _one_line(capsys, "nope")

@@ -6,8 +6,12 @@ overrides), :mod:`~uavcal_jax.calib.layers` (transformer encoder/decoder stacks)
 (eq. 15-18), :mod:`~uavcal_jax.calib.metrics` (eq. 19-23), :mod:`~uavcal_jax.calib.inject`
 (offset protocols, eq. 12), :mod:`~uavcal_jax.calib.batch` (window batches to model inputs),
 :mod:`~uavcal_jax.calib.inference` (frame-token reuse over a sequence) and
-:mod:`~uavcal_jax.calib.train` (jitted steps, vmapped seeds, data parallel) and
-:mod:`~uavcal_jax.calib.baselines` (the mean-offset and classical least-squares baselines).
+:mod:`~uavcal_jax.calib.train` (jitted steps, vmapped seeds, data parallel),
+:mod:`~uavcal_jax.calib.baselines` (the mean-offset and classical least-squares baselines),
+:mod:`~uavcal_jax.calib.loop` (epochs, checkpoints, resume, weight export),
+:mod:`~uavcal_jax.calib.predict` (a sequence's offset from a trained run),
+:mod:`~uavcal_jax.calib.pretrained` (the shipped demo weights) and
+:mod:`~uavcal_jax.calib.sim_sets` (the cached simulated data sets of the experiments).
 """
 
 from uavcal_jax.calib.baselines import (

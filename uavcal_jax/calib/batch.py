@@ -12,7 +12,7 @@ import numpy as np
 
 from uavcal_jax.calib.config import ModelConfig
 
-__all__ = ["IMU_SENSORS", "frames_to_model", "model_batch"]
+__all__ = ["IMU_SENSORS", "frames_to_model", "model_batch", "model_imu"]
 
 IMU_SENSORS = ("gyro", "accel")
 
@@ -29,19 +29,25 @@ def frames_to_model(frames: np.ndarray, rgb: bool) -> np.ndarray:
     return np.moveaxis(frames, -1, -3)
 
 
-def model_batch(window_batch: dict, config: ModelConfig, sensor: str = "gyro") -> dict:
-    """``{"frames", "imu", "mask"}`` model inputs from a :meth:`WindowSet.batch` dict.
-
-    With ``config.imu_channels == 3``, ``sensor`` picks ``"gyro"`` or ``"accel"``. An
-    ``"offset"`` entry, when present, is passed through as float32 ``(B, C)``.
-    """
+def model_imu(window_batch: dict, config: ModelConfig, sensor: str = "gyro") -> np.ndarray:
+    """The model's ``imu (B, T, C)`` float32 from a :meth:`WindowSet.batch` /
+    :meth:`WindowSet.samples` dict: gyro then accel, or with ``config.imu_channels == 3``
+    the one ``sensor`` (``"gyro"`` or ``"accel"``)."""
     if config.imu_channels == 6:
         imu = np.concatenate([window_batch["gyro"], window_batch["accel"]], axis=-1)
     elif sensor in IMU_SENSORS:
         imu = window_batch[sensor]
     else:
         raise ValueError(f"sensor must be one of {IMU_SENSORS}, got {sensor!r}")
-    out = {"imu": np.asarray(imu, np.float32), "mask": np.asarray(window_batch["mask"], bool)}
+    return np.asarray(imu, np.float32)
+
+
+def model_batch(window_batch: dict, config: ModelConfig, sensor: str = "gyro") -> dict:
+    """``{"frames", "imu", "mask"}`` model inputs from a :meth:`WindowSet.batch` dict
+    (:func:`model_imu` for the IMU). An ``"offset"`` entry, when present, is passed through
+    as float32 ``(B, C)``."""
+    out = {"imu": model_imu(window_batch, config, sensor),
+           "mask": np.asarray(window_batch["mask"], bool)}
     if config.use_video:
         out["frames"] = frames_to_model(window_batch["frames"], config.rgb)
     if "offset" in window_batch:

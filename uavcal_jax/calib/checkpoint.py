@@ -15,12 +15,14 @@ and what differs (:class:`~uavcal_jax.errors.DataError`), not an orbax shape tra
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import jax
 import orbax.checkpoint as ocp
+from absl import logging as absl_logging
 
 from uavcal_jax.errors import DataError
 
@@ -59,8 +61,22 @@ def _first_line(err: BaseException) -> str:
     return f"{type(err).__name__}: {text[0] if text else ''}"
 
 
+@contextlib.contextmanager
+def _quiet_orbax(quiet: bool):
+    if not quiet:
+        yield
+        return
+    before = absl_logging.get_verbosity()
+    absl_logging.set_verbosity(absl_logging.ERROR)
+    try:
+        yield
+    finally:
+        absl_logging.set_verbosity(before)
+
+
 class RunCheckpoints:
-    """The ``last`` and ``best`` checkpoint series of run folder ``run_dir``."""
+    """The ``last`` and ``best`` checkpoint series of run folder ``run_dir``. Read-only, a
+    folder may hold one series only (the shipped weights keep ``best``)."""
 
     def __init__(self, run_dir: str | Path, keep: int = 2, read_only: bool = False):
         self.run_dir = Path(run_dir).absolute()
@@ -68,31 +84,39 @@ class RunCheckpoints:
         for kind in KINDS:
             folder = self.run_dir / "checkpoints" / kind
             if read_only and not folder.is_dir():
-                raise DataError(f"no {kind} checkpoints (not a calib run folder?)", self.run_dir)
+                continue
             # read-only managers never delete, and orbax warns unless max_to_keep is None
             kept = None if read_only else (keep if kind == "last" else 1)
-            options = ocp.CheckpointManagerOptions(
-                max_to_keep=kept, create=not read_only, read_only=read_only,
-                enable_async_checkpointing=False)
-            self._managers[kind] = ocp.CheckpointManager(folder, options=options,
-                                                         item_names=("state", "meta"))
+            with _quiet_orbax(read_only):  # orbax warns that read-only means read-only
+                options = ocp.CheckpointManagerOptions(
+                    max_to_keep=kept, create=not read_only, read_only=read_only,
+                    enable_async_checkpointing=False)
+                self._managers[kind] = ocp.CheckpointManager(folder, options=options,
+                                                             item_names=("state", "meta"))
+        if not self._managers:
+            raise DataError("no checkpoints (not a calib run folder?)", self.run_dir)
+
+    def _manager(self, kind: str) -> ocp.CheckpointManager:
+        if kind not in self._managers:
+            raise DataError(f"no {kind} checkpoints in this run folder", self.run_dir)
+        return self._managers[kind]
 
     def save(self, kind: str, epoch: int, tree: Any, meta: dict) -> None:
         """Write epoch ``epoch`` of series ``kind`` (``meta`` gets the format version) and
         wait until it is renamed into place."""
         meta = {**meta, "format_version": FORMAT_VERSION}
-        manager = self._managers[kind]
+        manager = self._manager(kind)
         manager.save(int(epoch), args=ocp.args.Composite(
             state=ocp.args.StandardSave(tree), meta=ocp.args.JsonSave(meta)), force=True)
         manager.wait_until_finished()
 
     def latest(self, kind: str = "last") -> int | None:
         """The newest complete epoch of ``kind``, ``None`` when there is none."""
-        return self._managers[kind].latest_step()
+        return self._manager(kind).latest_step()
 
     def read_meta(self, kind: str = "last", epoch: int | None = None) -> tuple[int, dict]:
         """``(epoch, meta)`` of a saved step (default the newest)."""
-        manager = self._managers[kind]
+        manager = self._manager(kind)
         epoch = manager.latest_step() if epoch is None else epoch
         if epoch is None:
             raise DataError(f"no {kind} checkpoint saved yet", self.run_dir)
@@ -124,7 +148,7 @@ class RunCheckpoints:
                             f"({'; '.join(diff)})", self.run_dir)
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, abstract_tree)
         try:
-            out = self._managers[kind].restore(epoch, args=ocp.args.Composite(
+            out = self._manager(kind).restore(epoch, args=ocp.args.Composite(
                 state=ocp.args.StandardRestore(abstract)))
         except Exception as err:
             raise DataError(f"{kind} checkpoint {epoch} does not restore "

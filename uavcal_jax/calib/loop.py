@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,7 +60,8 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress as progress_bar
 
 __all__ = ["MONITORS", "VALIDATIONS", "FitResult", "LoopConfig", "epoch_order", "evaluate",
-           "fit", "mean_offset_baseline", "read_run_config", "resolved_config", "restore_run"]
+           "export_weights", "fit", "mean_offset_baseline", "read_run_config",
+           "resolved_config", "restore_run"]
 
 MONITORS = ("train", "val")
 VALIDATIONS = ("split", "loo", "kfold")
@@ -227,6 +229,36 @@ def restore_run(run_dir: str | Path, parts: list[Windows], kind: str = "best"
     with RunCheckpoints(run_dir, keep=loop.keep, read_only=True) as ckpt:
         tree, _ = ckpt.restore(kind, abstract, resolved_config(config, loop, parts))
     return tree["state"], seeds
+
+
+def export_weights(run_dir: str | Path, target: str | Path, parts: list[Windows],
+                   kind: str = "best") -> Path:
+    """Write ``target``: a run folder holding ``run_dir``'s ``config.json`` and its ``kind``
+    checkpoint only, with the optimiser's moments zeroed (they compress to nothing; a
+    model to predict with needs only parameters, batch statistics and the IMU statistics).
+    It restores like any run (:func:`restore_run`, ``kind``) but does not resume training.
+    Written into a temporary sibling and renamed, so ``target`` is whole or absent."""
+    run_dir, target = Path(run_dir), Path(target)
+    config, loop, _, _ = read_run_config(run_dir)
+    seeds = config.train.seeds
+    stats = training_statistics(parts, config.model.imu_channels,
+                                config.injection.single_sensor)
+    abstract = {"state": _init_state(config, parts, stats, seeds, abstract=True),
+                "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
+    with RunCheckpoints(run_dir, keep=loop.keep, read_only=True) as ckpt:
+        tree, meta = ckpt.restore(kind, abstract, resolved_config(config, loop, parts))
+    state = tree["state"]
+    tree["state"] = state.replace(opt_state=jax.tree.map(jnp.zeros_like, state.opt_state))
+    tmp = target.with_name(f".{target.name}.partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    shutil.copy2(run_dir / "config.json", tmp / "config.json")
+    with RunCheckpoints(tmp, keep=1) as out:
+        out.save(kind, int(meta["epoch"]), tree, {**meta, "exported_from": str(run_dir)})
+    shutil.rmtree(tmp / "checkpoints" / ("last" if kind == "best" else "best"))
+    shutil.rmtree(target, ignore_errors=True)
+    tmp.rename(target)
+    return target
 
 
 def _metrics_rows(path: Path, upto: int) -> list[dict]:

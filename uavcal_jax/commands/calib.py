@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from uavcal_jax.argtypes import positive_int, print_json
+from uavcal_jax.argtypes import parse_offset, positive_int, print_json
+from uavcal_jax.calib.checkpoint import KINDS
 from uavcal_jax.errors import DataError
 from uavcal_jax.xla_cache import enable_compilation_cache
 
@@ -36,6 +38,19 @@ examples:
   uavcal calib train --data sims/ --out runs/cal --validation loo --epochs 20
   uavcal calib train --data sims/V1_01 --out runs/cal --seeds 4 --set window.duration=4
   uavcal calib train --data sims/ --out runs/cal --validation loo --resume"""
+
+PREDICT_DESCRIPTION = """\
+Estimate the constant offset in a recording's IMU with a trained calibrator: the sequence is
+cut into the run's windows, every frame is encoded once (overlapping windows reuse its token),
+every window gets an estimate, and the median over windows is the sequence's. The true offset
+is known when the recording is a simulated one made with `uavcal simulate --imu-offset`
+(sim_config.json) and/or --inject adds one; then the error is printed too."""
+
+PREDICT_EPILOG = """\
+examples:
+  uavcal calib predict --sequence sims/V1_01 --out offsets.json --plot offsets.png
+  uavcal calib predict --checkpoint runs/cal --sequence data/V1_01 --inject 0.02,0,0,0.1,0,0
+  uavcal vio --sequence sims/V1_01 --out traj.txt --offsets offsets.json"""
 
 #: Trial folder names of loo/kfold runs.
 TRIAL_FORMAT = "trial_{:02d}"
@@ -87,6 +102,29 @@ def register(subparsers) -> None:
                         "validation windows]")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_eval)
+
+    p = sub.add_parser("predict", help="estimate a recording's IMU offset with a trained model",
+                       description=PREDICT_DESCRIPTION, epilog=PREDICT_EPILOG,
+                       formatter_class=raw)
+    p.add_argument("--checkpoint", metavar="RUN", default=None,
+                   help="a run folder written by `calib train` (a loo/kfold trial folder, "
+                        "RUN/trial_NN) [default: the small weights shipped in the package, "
+                        "made by experiments/calib_default_weights.py]")
+    p.add_argument("--sequence", required=True, metavar="DIR",
+                   help="an EuRoC folder (real, or simulated by `uavcal simulate`)")
+    p.add_argument("--kind", choices=KINDS, default="best",
+                   help="which checkpoint of the run [default: %(default)s]")
+    p.add_argument("--inject", type=parse_offset, default=None, metavar="GX,GY,GZ,AX,AY,AZ",
+                   help="add this constant offset to the recorded IMU first (try the model on "
+                        "a clean recording with a known miscalibration; write --inject=-0.01,"
+                        "... for a negative first value)")
+    p.add_argument("--out", type=Path, default=None, metavar="JSON",
+                   help='write the estimate as {"offset": [6 numbers], ...}, the input of '
+                        "`uavcal vio --offsets`")
+    p.add_argument("--plot", type=Path, default=None, metavar="PNG",
+                   help="write a PNG of the per-window estimates against the true offset")
+    p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
+    p.set_defaults(func=run_predict)
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -253,4 +291,91 @@ def run_eval(args) -> int:
             print(f"{t['run']}: {t['windows']} windows, offset RMSE {r['val_offset_rmse']:.4f}, "
                   f"sign F1 {r['val_sign_f1']:.4f}; mean-offset baseline offset RMSE "
                   f"{r['baseline_offset_rmse']:.4f}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- predict
+
+
+def _predict_run_dir(checkpoint: str | None) -> Path:
+    from uavcal_jax.calib.pretrained import default_weights
+
+    if checkpoint is None:
+        return default_weights()
+    run = Path(checkpoint)
+    if not (run / "config.json").is_file() and any(run.glob("trial_*/config.json")):
+        raise DataError("a loo/kfold run holds one model per trial: give one, e.g. "
+                        f"{run / TRIAL_FORMAT.format(0)}", run)
+    return run
+
+
+def _offset_table(channels, rows: dict[str, np.ndarray]) -> str:
+    lines = [f"{'':>16}" + "".join(f"{c:>10}" for c in channels)]
+    lines += [f"{name:>16}" + "".join(f"{v:>10.4f}" for v in values)
+              for name, values in rows.items()]
+    return "\n".join(lines + ["(gyro rad/s, accel m/s^2)"])
+
+
+def plot_predictions(path: Path, prediction, true=None) -> Path:
+    """PNG: each channel's per-window estimates against window start time, the median and,
+    when known, the true offset (the Figure 2 view of one sequence)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = len(prediction.channels)
+    fig, axes = plt.subplots(c // 3, 3, figsize=(11, 3.2 * (c // 3)), squeeze=False,
+                             sharex=True)
+    for j, (ax, name) in enumerate(zip(axes.flat, prediction.channels, strict=True)):
+        ax.plot(prediction.start_s, prediction.per_window[:, j], ".", ms=4, label="window")
+        ax.axhline(prediction.median[j], color="C0", lw=1.5, label="median")
+        if true is not None:
+            ax.axhline(true[j], color="k", ls="--", lw=1.2, label="true")
+        ax.set_title(name + (" (rad/s)" if name.startswith("g") else " (m/s^2)"))
+        ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("window start (s)")
+    axes.flat[0].legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def run_predict(args) -> int:
+    from uavcal_jax.calib.predict import expand_to_six, predict_recording
+    from uavcal_jax.data.offset_json import write_offset_json
+
+    enable_compilation_cache()
+    run_dir = _predict_run_dir(args.checkpoint)
+    summary, prediction = predict_recording(run_dir, args.sequence, kind=args.kind,
+                                            inject=args.inject)
+    true = None if summary["true"] is None else np.asarray(summary["true"])
+    sensor = summary["sensor"]
+    if args.out is not None:
+        if len(prediction.channels) != 6:
+            warnings.warn(f"a {sensor}-only model: the other sensor's channels are written as "
+                          "0 in " + str(args.out), stacklevel=1)
+        write_offset_json(args.out, expand_to_six(prediction.median, sensor),
+                          **{k: summary[k] for k in ("run", "sequence", "channels", "windows",
+                                                     "per_window", "true", "error")})
+        summary["out"] = str(args.out)
+    if args.plot is not None:
+        summary["plot"] = str(plot_predictions(args.plot, prediction, true))
+    if args.json:
+        print_json(summary)
+        return 0
+    rows = {"estimate (median)": prediction.median,
+            "window spread": np.asarray(summary["per_window_std"])}
+    if true is not None:
+        rows.update({"true": true, "error": prediction.median - true})
+    seeds = summary["seeds"]
+    print(f"{run_dir} ({args.kind}, {seeds} seed{'s' * (seeds > 1)}): "
+          f"{summary['windows']} windows of {summary['window_s']:g} s on {args.sequence}")
+    print(_offset_table(prediction.channels, rows))
+    for key in ("out", "plot"):
+        if key in summary:
+            print(f"wrote {summary[key]}")
     return 0

@@ -194,6 +194,15 @@ class WindowSet:
         frames[~mask] = 0
         return {"frames": frames, **self._side(idx, mask), "window": indices}
 
+    def samples(self, indices=None) -> dict[str, np.ndarray]:
+        """:meth:`batch` without the frames (cheap for every window of a long sequence,
+        whose frames a consumer reads through ``frame_index`` instead); ``indices``
+        ``None``: all windows."""
+        indices = (np.arange(len(self)) if indices is None
+                   else np.asarray(indices, dtype=np.int64).reshape(-1))
+        return {**self._side(self.frame_index[indices], self.frame_mask[indices]),
+                "window": indices}
+
     def _side(self, idx: np.ndarray, mask: np.ndarray, squeeze: bool = False) -> dict:
         safe = np.maximum(idx, 0)
         imu = self.imu_index[safe]

@@ -1,0 +1,97 @@
+"""Make the small calibrator weights shipped in the package (``uavcal demo``, ``uavcal calib
+predict`` without ``--checkpoint``).
+
+Recipe: ``--flights`` seeded procedural flights of ``--duration`` s at the demo's resolution
+(:data:`uavcal_jax.calib.sim_sets.RENDER_RESOLUTION`), rendered once into ``--cache``
+(:mod:`uavcal_jax.calib.sim_sets`); trained on them (what ``uavcal calib train`` runs) with the
+physical protocol
+(offsets in the range of real IMU biases, like the demo's), a fifth of the flights held
+out for validation, early stopping on the validation loss, and the small model of :data:`SETTINGS`
+(2 s windows so the demo's 3 s flight holds some, 160x96 frames in 32x32 patches, d 64);
+then the run's ``config.json`` and best checkpoint (optimiser moments dropped,
+:func:`uavcal_jax.calib.loop.export_weights`) go to
+:data:`uavcal_jax.calib.pretrained.DEFAULT_WEIGHTS` (with ``--install``).
+
+Usage::
+
+    python experiments/calib_default_weights.py --install          # about 20-30 min, 2 cores
+    python experiments/calib_default_weights.py --flights 4 --epochs 2   # a smoke run
+
+Prints the training summary and, as the last line, one JSON object (validation metrics of
+the best epoch beside the mean-offset baseline, sizes, wall time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import time
+from pathlib import Path
+
+from uavcal_jax.argtypes import positive, positive_int, print_json
+from uavcal_jax.calib.config import CalibConfig, with_overrides
+from uavcal_jax.calib.data import load_windows
+from uavcal_jax.calib.loop import LoopConfig, export_weights, fit
+from uavcal_jax.calib.pretrained import DEFAULT_WEIGHTS
+from uavcal_jax.calib.sim_sets import RENDER_RESOLUTION, SimSetConfig, simulated_set
+from uavcal_jax.data.windows import WindowConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The shipped model (``uavcal calib train --set`` keys) and windows.
+SETTINGS = {"model.d_model": 64, "model.heads": 4, "model.layers": 2, "model.patch": (32, 32),
+            "train.batch_size": 16, "train.learning_rate": 1e-3, "train.patience": 4,
+            "injection.protocol": "physical"}
+WINDOW = WindowConfig(duration=2.0, stride=0.5, size=(160, 96))
+LOOP = LoopConfig(monitor="val", keep=1)
+#: Seed of the procedural flights (the demo flies seed 0: training starts past it).
+FLIGHT_SEED = 1000
+
+
+def _size_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--flights", type=positive_int, default=24, help="procedural flights")
+    ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
+    ap.add_argument("--epochs", type=positive_int, default=60, help="most epochs")
+    ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "calib_cache")
+    ap.add_argument("--run", type=Path, default=ROOT / "experiments" / "out" / "calib_default")
+    ap.add_argument("--install", action="store_true",
+                    help=f"copy the best checkpoint to {DEFAULT_WEIGHTS}")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    folders = simulated_set(SimSetConfig(family="procedural", count=args.flights,
+                                         max_duration=args.duration,
+                                         resolution=RENDER_RESOLUTION, seed=FLIGHT_SEED),
+                            args.cache, progress=not args.quiet)
+    t_sim = time.perf_counter() - t0
+    config = with_overrides(CalibConfig(), {**SETTINGS, "train.epochs": args.epochs})
+    # whole flights held out (overlapping windows of one flight share frames: a split over
+    # windows would validate on frames it trained on)
+    parts = load_windows(folders, WINDOW)
+    n_val = max(1, round(LOOP.val_fraction * len(parts)))
+    train, val = parts[:-n_val], parts[-n_val:]
+    shutil.rmtree(args.run, ignore_errors=True)
+    res = fit(config, train, val, args.run, loop=LOOP, progress=not args.quiet).summary
+    best = res["best"]
+    summary = {"flights": args.flights, "duration_s": args.duration, "settings": SETTINGS,
+               "windows": {"train": res["num_train"], "val": res["num_val"]},
+               "epochs_run": res["epochs"], "best_epoch": res["best_epoch"],
+               "val_offset_rmse": best.get("val_offset_rmse"),
+               "val_sign_f1": best.get("val_sign_f1"),
+               "baseline_offset_rmse": best.get("baseline_offset_rmse"),
+               "simulate_s": round(t_sim, 1), "wall_s": round(time.perf_counter() - t0, 1),
+               "command": "python experiments/calib_default_weights.py " + " ".join(
+                   f"--{k} {getattr(args, k)}" for k in ("flights", "duration", "epochs"))}
+    if args.install:
+        target = export_weights(args.run, DEFAULT_WEIGHTS, train)
+        summary.update(installed=str(target), installed_bytes=_size_bytes(target))
+    print_json(summary)
+
+
+if __name__ == "__main__":
+    main()

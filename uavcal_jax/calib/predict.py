@@ -1,0 +1,190 @@
+"""Offset estimates over a whole sequence from a trained calibrator.
+
+:func:`predict_sequence` cuts nothing itself: it takes a sequence's
+:class:`~uavcal_jax.data.windows.WindowSet` (windows of the run's geometry), encodes each of
+its frames once (:func:`uavcal_jax.calib.inference.encode_frames`, the frame-token reuse of
+overlapping windows), predicts every window's offset, and summarises them by the median over
+windows (robust to the few windows a fast manoeuvre or a dark stretch throws off). A run of
+``K`` vmapped seeds is an ensemble: each window's estimate is the mean of the seeds'.
+
+:func:`recorded_offset` reads the offset a simulated recording carries
+(``sim_config.json``'s ``config.imu_offset``, written by ``uavcal simulate --imu-offset``):
+with it the true offset of a prediction is known.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from uavcal_jax.calib.batch import frames_to_model, model_imu
+from uavcal_jax.calib.data import load_windows
+from uavcal_jax.calib.inference import encode_frames, predict_windows
+from uavcal_jax.calib.inject import inject
+from uavcal_jax.calib.loop import read_run_config, restore_run
+from uavcal_jax.calib.train import CalibState
+from uavcal_jax.data.windows import WindowSet
+from uavcal_jax.errors import DataError
+from uavcal_jax.sim.simulate import SIM_CONFIG_FILE
+
+__all__ = ["SequencePrediction", "channel_names", "expand_to_six", "predict_recording",
+           "predict_sequence", "recorded_offset"]
+
+GYRO_CHANNELS = ("gx", "gy", "gz")
+ACCEL_CHANNELS = ("ax", "ay", "az")
+#: Windows per predict call (one compile; the last call padded).
+WINDOW_CHUNK = 32
+
+
+class SequencePrediction(NamedTuple):
+    """Offsets predicted over one sequence.
+
+    Attributes:
+        per_window: ``(W, C)`` each window's estimate (mean over seeds), gyro rad/s then
+            accel m/s^2 (``C`` = 6, or 3 for a single-sensor model).
+        per_seed: ``(K, W, C)`` each seed's estimates.
+        start_s: ``(W,)`` window start times, seconds since the first frame.
+        median: ``(C,)`` the median of ``per_window`` over windows: the sequence's estimate.
+        channels: the names of the ``C`` channels.
+    """
+
+    per_window: np.ndarray
+    per_seed: np.ndarray
+    start_s: np.ndarray
+    median: np.ndarray
+    channels: tuple[str, ...]
+
+
+def channel_names(channels: int, sensor: str) -> tuple[str, ...]:
+    """Names of a model's ``channels`` (6, or 3 of ``sensor``)."""
+    if channels == 6:
+        return GYRO_CHANNELS + ACCEL_CHANNELS
+    return GYRO_CHANNELS if sensor == "gyro" else ACCEL_CHANNELS
+
+
+def expand_to_six(offset, sensor: str) -> np.ndarray:
+    """A ``(6,)`` offset from a 6- or 3-channel one (the other sensor's channels 0)."""
+    offset = np.asarray(offset, np.float64).reshape(-1)
+    if offset.size == 6:
+        return offset
+    out = np.zeros(6)
+    out[slice(0, 3) if sensor == "gyro" else slice(3, 6)] = offset
+    return out
+
+
+def _seed_states(state: CalibState, seeds: int) -> list[CalibState]:
+    if seeds == 1:
+        return [state]
+    return [jax.tree.map(lambda x, k=k: x[k], state) for k in range(seeds)]
+
+
+def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
+                     inject_offset=None) -> SequencePrediction:
+    """Every window's offset estimate on ``windows`` (cut with the run's window geometry).
+
+    Args:
+        state: a restored :class:`CalibState` (stacked on a leading ``K`` axis when
+            ``seeds > 1``).
+        windows: the sequence's windows.
+        seeds: ``K``.
+        inject_offset: ``(C,)`` added to the recorded IMU before prediction (to try the model
+            on a clean recording with a known miscalibration), or ``None``.
+
+    Raises:
+        DataError: the sequence has no window.
+    """
+    if len(windows) == 0:
+        raise DataError("the sequence has no complete window", windows.name)
+    config = _seed_states(state, seeds)[0].config
+    model_cfg, sensor = config.model, config.injection.single_sensor
+    all_idx = np.arange(len(windows))
+    samples = windows.samples()
+    imu = jnp.asarray(model_imu(samples, model_cfg, sensor))
+    mask = jnp.asarray(samples["mask"], bool)
+    if inject_offset is not None:
+        offset = jnp.asarray(np.broadcast_to(np.asarray(inject_offset, np.float32),
+                                             (len(all_idx), imu.shape[-1])))
+        imu = inject(imu, offset, mask)
+    frames = frames_to_model(windows.frames, model_cfg.rgb) if model_cfg.use_video else None
+    index = np.asarray(windows.frame_index)
+    per_seed = []
+    for s in _seed_states(state, seeds):
+        tokens = None if frames is None else encode_frames(s.model, s.variables(), frames)
+        out = []
+        for lo in range(0, len(all_idx), WINDOW_CHUNK):
+            sel = np.arange(lo, lo + WINDOW_CHUNK).clip(max=len(all_idx) - 1)
+            out.append(np.asarray(predict_windows(s.model, s.variables(), tokens, index[sel],
+                                                  mask[sel], imu[sel])))
+        per_seed.append(np.concatenate(out)[:len(all_idx)])
+    per_seed_arr = np.stack(per_seed).astype(np.float64)
+    per_window = per_seed_arr.mean(axis=0)
+    start_s = (windows.start_ns - windows.frame_t_ns[0]) * 1e-9
+    return SequencePrediction(per_window, per_seed_arr, start_s, np.median(per_window, axis=0),
+                              channel_names(per_window.shape[1], sensor))
+
+
+def recorded_offset(root: str | Path) -> np.ndarray | None:
+    """The ``(6,)`` IMU offset a simulated recording carries (``sim_config.json``), ``None``
+    when ``root`` has no ``sim_config.json`` or it records no offset."""
+    path = Path(root) / SIM_CONFIG_FILE
+    if not path.is_file():
+        return None
+    try:
+        value = json.loads(path.read_text())["config"].get("imu_offset")
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
+        raise DataError("not a readable simulator record (no config.imu_offset)",
+                        path) from None
+    return None if value is None else np.asarray(value, np.float64)
+
+
+def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = "best",
+                      inject=None) -> tuple[dict, SequencePrediction]:
+    """``(summary, prediction)`` of the run folder's ``kind`` checkpoint on the EuRoC folder
+    ``sequence``, cut into the run's windows (black frames masked, as in training).
+
+    ``inject``: ``(6,)`` added to the recorded IMU first (only the model's channels are
+    used). The true offset is known when ``sequence`` is a simulated recording with an
+    offset (:func:`recorded_offset`) and/or ``inject`` is given: then ``summary`` holds it,
+    the ``error`` of the median and its ``rmse``. ``summary`` is JSON-ready.
+
+    Raises:
+        DataError: not a run folder, a checkpoint of another configuration or version, a
+            sequence shorter than one window, unreadable data.
+    """
+    config, _, window, _ = read_run_config(run_dir)
+    sensor = config.injection.single_sensor
+    channels = config.model.imu_channels
+    (part,) = load_windows([sequence], window)
+    state, seeds = restore_run(run_dir, [part], kind=kind)
+    pick = (slice(None) if channels == 6 else
+            slice(0, 3) if sensor == "gyro" else slice(3, 6))
+    shift = None if inject is None else np.asarray(inject, np.float64)[pick]
+    prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
+    recorded = recorded_offset(sequence)
+    true = None
+    if recorded is not None or inject is not None:
+        true = (np.zeros(6) if recorded is None else recorded) + (
+            np.zeros(6) if inject is None else np.asarray(inject, np.float64))
+        true = true[pick]
+    error = None if true is None else prediction.median - true
+    summary = {
+        "run": str(run_dir), "kind": kind, "sequence": str(sequence), "seeds": seeds,
+        "sensor": sensor, "channels": list(prediction.channels),
+        "window_s": window.duration, "stride_s": window.stride,
+        "windows": int(prediction.per_window.shape[0]),
+        "offset": prediction.median.tolist(),
+        "per_window_std": prediction.per_window.std(axis=0).tolist(),
+        "per_window": prediction.per_window.tolist(),
+        "window_start_s": prediction.start_s.tolist(),
+        "injected": None if inject is None else np.asarray(inject, float).tolist(),
+        "recorded": None if recorded is None else recorded.tolist(),
+        "true": None if true is None else true.tolist(),
+        "error": None if error is None else error.tolist(),
+        "rmse": None if error is None else float(np.sqrt(np.mean(np.square(error)))),
+    }
+    return summary, prediction
