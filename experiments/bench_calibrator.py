@@ -1,0 +1,497 @@
+"""Speed of the IMU-offset transformer (Avola et al., Sensors 2023): training step, inference.
+
+Two presets: ``paper`` -- the :class:`~uavcal_jax.calib.config.CalibConfig` defaults (batch
+16; d 256, 8 heads, 2 layers, 64x64 patches) on 200-frame windows of 320x180 uint8 grayscale
+(10 s at 20 Hz, the :class:`~uavcal_jax.data.windows.WindowConfig` geometry) -- and ``small``
+(batch 4, 50 frames, d 128; the peer's ``--small``). Inputs are synthetic, with the shapes
+and dtypes :func:`uavcal_jax.calib.data.gather` produces (``frames (B, T, 180, 320)`` uint8,
+``imu (B, T, 6)`` float32, ``mask (B, T)`` bool, ``weight (B,)``), placed on the device once
+(host-to-device copies are the input pipeline's cost, not the step's). Per preset:
+
+* ``params``: parameter count (the peer takes the first patch's output row as the frame
+  token, so it lacks the learned frame token and one patch position: ``peer_params_minus_ours``
+  shows the difference).
+* ``train_step_s``: one :func:`~uavcal_jax.calib.train.train_step` (offset draw, injection,
+  forward, backward, AdamW), compiled first (``train_compile_s``, timed apart), warm-up
+  steps (2; 1 at paper size, the peer's too), then the median of the timed steps, each fed
+  the state the last one returned; ``train_cpu_s`` is the process CPU time per step (all
+  threads), a load-independent measure.
+* ``window_ms``: the deterministic model on ONE 10 s window (batch 1), jitted and compiled
+  apart (``window_compile_s``); the target is at most 100 ms (``window_meets_100ms``).
+* ``sequence``: a 60 s sequence, 10 s windows with a 1 s stride (51 windows), from host
+  arrays to offsets: ``reuse_s`` encodes each frame once
+  (:func:`~uavcal_jax.calib.inference.encode_frames`, chunks of 64) and runs the rest of the
+  model on all windows at once (:func:`~uavcal_jax.calib.inference.predict_windows`), split
+  into ``reuse_encode_s`` and ``reuse_predict_s``;
+  ``full_s`` runs the whole model window by window (the compiled single-window function, each
+  window's frames gathered from the sequence). ``speedup = full_s / reuse_s``;
+  ``max_abs_diff`` compares their offsets (they must agree). The reuse path's first call
+  (compiling its two functions) is ``reuse_first_call_s``.
+* ``peer``: the PyTorch peer (``../shared/tools/peer_calibrator_torch.py --bench``) run as a
+  subprocess with the same preset and thread count after ours (never beside it), its JSON
+  line, and ``peer_step_over_ours`` / ``peer_window_over_ours`` (above 1: ours is faster).
+  ``null`` with ``peer_error`` when the interpreter is missing or the run fails.
+
+``seeds`` (small preset, run after both presets):
+:func:`~uavcal_jax.calib.train.train_step_seeds` on K = 8 stacked states against the small
+preset's :func:`~uavcal_jax.calib.train.train_step` on one; ``per_seed_ratio`` is
+``(time(K=8) / 8) / time(K=1)`` (below 1: vmapping seeds shares work).
+
+Memory: ``peak_rss_mib_after`` is the process peak RSS (``resource.getrusage``) when a stage
+is done -- a running maximum: small runs first and the seeds last, so the small preset's
+figure is its own and the paper's is its own unless below the small one's;
+``*_xla_temp_mib`` is XLA's planned temporary buffers of the compiled function
+(``Compiled.memory_analysis``); ``device_memory`` is ``Device.memory_stats()`` where the
+backend has them (``None`` on XLA:CPU). The peer's ``peak_rss_mib`` is its ``VmHWM`` polled
+from ``/proc`` (its own getrusage figure inherits ours across fork/exec: see
+:func:`run_peer`).
+
+Threads: XLA:CPU sizes its thread pool by the CPUs this process may run on (its affinity),
+not by a setting; the peer gets ``torch.set_num_threads(--threads)``, by default that same
+count. To compare on fewer cores, run the whole benchmark under ``taskset -c 0-1`` (the
+peer inherits the affinity). The 1-minute load average before and after is recorded: on a
+shared CPU the wall-clock figures include other processes' time.
+
+The last line printed is one JSON object.
+
+Usage::
+
+    python experiments/bench_calibrator.py                      # both presets and the peer
+    python experiments/bench_calibrator.py --small-only --repeats 2 --no-peer
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from uavcal_jax.argtypes import positive_int, print_json
+from uavcal_jax.calib import inference
+from uavcal_jax.calib.config import CalibConfig, with_overrides
+from uavcal_jax.calib.model import Calibrator
+from uavcal_jax.calib.train import (
+    create_train_state,
+    create_train_states,
+    train_step,
+    train_step_seeds,
+)
+from uavcal_jax.data.windows import WindowConfig
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_PEER_PYTHON = REPO.parent / "peer-venv" / "bin" / "python"
+DEFAULT_PEER_SCRIPT = REPO.parent / "shared" / "tools" / "peer_calibrator_torch.py"
+
+# (batch, frames per 10 s window, d_model); heads, layers and patch stay the defaults.
+PRESETS = {"small": (4, 50, 128), "paper": (16, 200, 256)}
+SEQUENCE_S = 60.0  # the sequence of the reuse comparison, seconds
+SEEDS_K = 8
+WINDOW_TARGET_MS = 100.0
+PEER_TIMEOUT_S = 3600.0
+MIB = 2.0 ** 20
+
+
+def preset_config(batch: int, d_model: int) -> CalibConfig:
+    """The default configuration with the preset's batch size and width."""
+    return with_overrides(CalibConfig(), {"train.batch_size": batch, "model.d_model": d_model})
+
+
+def synthetic_imu(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """IMU samples ``shape + (6,)`` float32: gyro rad/s about 0, accel m/s^2 about gravity."""
+    gyro = rng.normal(0.0, 0.3, shape + (3,))
+    accel = rng.normal(0.0, 0.5, shape + (3,)) + np.array([0.0, 0.0, 9.81])
+    return np.concatenate([gyro, accel], axis=-1).astype(np.float32)
+
+
+def synthetic_batch(rng: np.random.Generator, batch: int, frames: int,
+                    hw: tuple[int, int]) -> dict:
+    """A training batch as :func:`uavcal_jax.calib.data.gather` returns it (every slot real)."""
+    return {"frames": rng.integers(0, 256, (batch, frames) + hw, dtype=np.uint8),
+            "imu": synthetic_imu(rng, (batch, frames)),
+            "mask": np.ones((batch, frames), bool),
+            "weight": np.ones(batch, np.float32)}
+
+
+def sequence_windows(n_frames: int, per_window: int, stride: int) -> np.ndarray:
+    """``frame_index (W, T)`` of every window of ``per_window`` frames, ``stride`` apart."""
+    starts = np.arange(0, n_frames - per_window + 1, stride)
+    return (starts[:, None] + np.arange(per_window)[None, :]).astype(np.int32)
+
+
+def _timed(fn, repeats: int, warmup: int = 1) -> tuple[list[float], list[float]]:
+    """Wall-clock and process-CPU seconds of ``repeats`` calls of ``fn()`` (which must block
+    until its result is ready) after ``warmup`` untimed ones."""
+    for _ in range(warmup):
+        fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t, c = time.perf_counter(), time.process_time()
+        fn()
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return wall, cpu
+
+
+def _median(values) -> float:
+    return float(np.median(np.asarray(values, np.float64)))
+
+
+def _rounded(values, digits: int = 4) -> list[float]:
+    return [round(float(v), digits) for v in values]
+
+
+def _xla_temp_mib(compiled) -> float | None:
+    try:
+        stats = compiled.memory_analysis()
+    except Exception:  # not every backend / jax version implements it
+        return None
+    return None if stats is None else round(stats.temp_size_in_bytes / MIB, 1)
+
+
+def _device_memory() -> dict | None:
+    stats = jax.devices()[0].memory_stats()
+    if not stats:
+        return None
+    names = {"bytes_in_use": "in_use_mib", "peak_bytes_in_use": "peak_in_use_mib",
+             "bytes_limit": "limit_mib"}
+    return {v: round(stats[k] / MIB, 1) for k, v in names.items() if k in stats}
+
+
+def _peak_rss_mib() -> float:
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)  # KiB on Linux
+
+
+def _param_count(params) -> int:
+    return int(sum(np.size(x) for x in jax.tree.leaves(params)))
+
+
+def _progress(quiet: bool, text: str) -> None:
+    if not quiet:
+        print(text, file=sys.stderr, flush=True)
+
+
+def bench_training(config: CalibConfig, batch: dict, repeats: int,
+                   warmup: int) -> tuple[dict, object]:
+    """Compile and time :func:`train_step` on ``batch``; returns the figures and the
+    initial state (its variables serve inference)."""
+    state = create_train_state(config, jax.random.key(0), batch)
+    dev_batch = jax.device_put(batch)
+    keys = jax.random.split(jax.random.key(1), repeats + warmup)
+    t0 = time.perf_counter()
+    step = train_step.lower(state, dev_batch, keys[0]).compile()
+    compile_s = time.perf_counter() - t0
+    holder = {"state": state, "i": 0}
+    losses = []
+
+    def one():
+        s, metrics = step(holder["state"], dev_batch, keys[holder["i"]])
+        jax.block_until_ready(s)
+        holder["state"], holder["i"] = s, holder["i"] + 1
+        losses.append(float(metrics["loss"]))
+
+    wall, cpu = _timed(one, repeats, warmup)
+    if not np.all(np.isfinite(losses)):
+        raise RuntimeError(f"non-finite training loss: {losses}")
+    return {"params": _param_count(state.params), "train_compile_s": round(compile_s, 2),
+            "train_step_s": round(_median(wall), 4), "train_step_s_runs": _rounded(wall),
+            "train_cpu_s": round(_median(cpu), 4), "train_xla_temp_mib": _xla_temp_mib(step),
+            "train_loss_first_last": _rounded([losses[0], losses[-1]])}, state
+
+
+def bench_window(model: Calibrator, variables, window: dict, repeats: int) -> tuple[dict, object]:
+    """Compile and time the deterministic model on one window; returns the figures and the
+    compiled function ``(variables, frames, imu, mask) -> offsets``."""
+    apply = jax.jit(lambda v, f, i, m: model.apply(v, f, i, m))
+    args = (variables, jax.device_put(window["frames"]), jax.device_put(window["imu"]),
+            jax.device_put(window["mask"]))
+    t0 = time.perf_counter()
+    compiled = apply.lower(*args).compile()
+    compile_s = time.perf_counter() - t0
+    wall, cpu = _timed(lambda: jax.block_until_ready(compiled(*args)), repeats, warmup=2)
+    ms = 1e3 * _median(wall)
+    return {"window_compile_s": round(compile_s, 2), "window_ms": round(ms, 2),
+            "window_ms_min": round(1e3 * min(wall), 2),
+            "window_cpu_ms": round(1e3 * _median(cpu), 2),
+            "window_meets_100ms": bool(ms <= WINDOW_TARGET_MS),
+            "window_xla_temp_mib": _xla_temp_mib(compiled)}, compiled
+
+
+def bench_sequence(model: Calibrator, variables, window_fn, rng: np.random.Generator,
+                   per_window: int, hw: tuple[int, int], repeats: int) -> dict:
+    """A 60 s sequence with and without frame-token reuse (see the module docstring)."""
+    wc = WindowConfig()
+    rate = per_window / wc.duration  # frames (and IMU samples) per second
+    n_frames = int(round(SEQUENCE_S * rate))
+    index = sequence_windows(n_frames, per_window, int(round(wc.stride * rate)))
+    frames = rng.integers(0, 256, (n_frames,) + hw, dtype=np.uint8)
+    imu = synthetic_imu(rng, (n_frames,))[index]  # (W, T, 6): each window's samples
+    mask = np.ones(index.shape, bool)
+
+    split: list[tuple[float, float]] = []  # (encode, predict) seconds of each reuse call
+
+    def reuse():
+        t0 = time.perf_counter()
+        tokens = jax.block_until_ready(inference.encode_frames(model, variables, frames))
+        t1 = time.perf_counter()
+        out = jax.block_until_ready(
+            inference.predict_windows(model, variables, tokens, index, mask, imu))
+        split.append((t1 - t0, time.perf_counter() - t1))
+        return out
+
+    def full():
+        out = [window_fn(variables, frames[index[w]][None], imu[w][None], mask[w][None])
+               for w in range(index.shape[0])]
+        return jax.block_until_ready(jnp.concatenate(out))
+
+    t0 = time.perf_counter()
+    reused = reuse()  # compiles the frame encoder (one chunk shape) and the window predictor
+    first_s = time.perf_counter() - t0
+    reuse_wall, _ = _timed(reuse, repeats, warmup=0)
+    diff = float(np.max(np.abs(np.asarray(reused) - np.asarray(full()))))  # also the warm-up
+    full_wall, _ = _timed(full, repeats, warmup=0)
+    reuse_s, full_s = _median(reuse_wall), _median(full_wall)
+    return {"seconds": SEQUENCE_S, "frames": n_frames, "windows": int(index.shape[0]),
+            "reuse_first_call_s": round(first_s, 2), "reuse_s": round(reuse_s, 4),
+            "reuse_s_runs": _rounded(reuse_wall),
+            "reuse_encode_s": round(_median([e for e, _ in split[1:]]), 4),
+            "reuse_predict_s": round(_median([q for _, q in split[1:]]), 4),
+            "full_s": round(full_s, 4),
+            "full_s_runs": _rounded(full_wall), "speedup": round(full_s / reuse_s, 2),
+            "max_abs_diff": diff}
+
+
+def bench_seeds(config: CalibConfig, batch: dict, k: int, repeats: int, warmup: int,
+                one_seed_s: float) -> dict:
+    """``train_step_seeds`` on ``k`` stacked seeds against ``one_seed_s`` (``train_step``)."""
+    states = create_train_states(config, jax.random.split(jax.random.key(2), k), batch)
+    dev_batch = jax.device_put(batch)
+    keys = jax.random.split(jax.random.key(3), (repeats + warmup) * k).reshape(-1, k)
+    t0 = time.perf_counter()
+    step = train_step_seeds.lower(states, dev_batch, keys[0]).compile()
+    compile_s = time.perf_counter() - t0
+    holder = {"states": states, "i": 0}
+
+    def one():
+        s, _ = step(holder["states"], dev_batch, keys[holder["i"]])
+        holder["states"], holder["i"] = jax.block_until_ready(s), holder["i"] + 1
+
+    wall, _ = _timed(one, repeats, warmup)
+    step_s = _median(wall)
+    return {"k": k, "compile_s": round(compile_s, 2), "step_s": round(step_s, 4),
+            "step_s_runs": _rounded(wall), "per_seed_s": round(step_s / k, 4),
+            "one_seed_s": round(one_seed_s, 4),
+            "per_seed_ratio": round(step_s / k / one_seed_s, 3),
+            "xla_temp_mib": _xla_temp_mib(step)}
+
+
+def _vm_hwm_mib(pid: int) -> float | None:
+    """``VmHWM`` (peak resident set) of process ``pid`` from ``/proc``, MiB; None if gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0  # kB
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def run_peer(python: Path, script: Path, preset: str, threads: int, warmup: int,
+             train_steps: int, infer_runs: int) -> tuple[dict | None, str | None]:
+    """The peer's JSON line for ``preset``, or ``(None, reason)``.
+
+    The peer's own ``peak_rss_mib`` (getrusage) is wrong when it is started from this
+    process: Linux carries the parent's high-water mark across fork/exec, so it reports at
+    least ours. Its ``VmHWM`` (per address space, reset by exec) is polled from ``/proc``
+    while it runs and replaces it; the peer's figure is kept as ``peak_rss_mib_getrusage``.
+    """
+    if not Path(python).exists():
+        return None, f"peer interpreter {python} not found"
+    if not Path(script).exists():
+        return None, f"peer script {script} not found"
+    cmd = [str(python), str(script), "--bench", "--threads", str(threads),
+           "--warmup-steps", str(warmup), "--train-steps", str(train_steps),
+           "--warmup-infer", "2", "--infer-runs", str(infer_runs)]
+    if preset == "small":
+        cmd.append("--small")
+    try:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    except OSError as exc:
+        return None, f"peer did not start: {exc}"
+    hwm, t0 = None, time.monotonic()
+    while True:
+        try:
+            stdout, stderr = proc.communicate(timeout=0.25)
+            break
+        except subprocess.TimeoutExpired:
+            now = _vm_hwm_mib(proc.pid)
+            hwm = now if hwm is None or (now or 0) > hwm else hwm
+            if time.monotonic() - t0 > PEER_TIMEOUT_S:
+                proc.kill()
+                proc.communicate()
+                return None, f"peer ran past {PEER_TIMEOUT_S} s"
+    lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode or not lines:
+        tail = (stderr or stdout).strip().splitlines()[-3:] or ["no JSON line printed"]
+        return None, f"peer exited {proc.returncode}: {' | '.join(tail)}"
+    try:
+        peer = json.loads(lines[-1])
+    except json.JSONDecodeError as exc:
+        return None, f"peer printed no valid JSON: {exc}"
+    peer["peak_rss_mib_getrusage"] = peer.get("peak_rss_mib")
+    peer["peak_rss_mib"] = None if hwm is None else round(hwm, 1)
+    return peer, None
+
+
+def bench_preset(name: str, args, rng: np.random.Generator, quiet: bool) -> dict:
+    """Every per-preset figure of the module docstring for preset ``name``."""
+    batch_size, per_window, d_model = PRESETS[name]
+    heavy = name == "paper"
+    repeats = min(args.repeats, args.heavy_repeats) if heavy else args.repeats
+    warmup = 1 if heavy else 2  # training steps, ours and the peer's
+    config = preset_config(batch_size, d_model)
+    w, h = WindowConfig().size
+    hw = (h, w)
+    out: dict = {"config": {"batch": batch_size, "frames": per_window, "frame_hw": list(hw),
+                            "d_model": d_model, "heads": config.model.heads,
+                            "layers": config.model.layers, "patch": list(config.model.patch),
+                            "frame_token": config.model.frame_token}}
+    batch = synthetic_batch(rng, batch_size, per_window, hw)
+    _progress(quiet, f"[{name}] training step ...")
+    train, state = bench_training(config, batch, repeats, warmup)
+    out.update(train)
+    del batch
+    _progress(quiet, f"[{name}] one window ...")
+    model, variables = state.model, state.variables()
+    window = synthetic_batch(rng, 1, per_window, hw)
+    win, window_fn = bench_window(model, variables, window, args.repeats)
+    out.update(win)
+    _progress(quiet, f"[{name}] 60 s sequence ...")
+    out["sequence"] = bench_sequence(model, variables, window_fn, rng, per_window, hw,
+                                     repeats)
+    out["peak_rss_mib_after"] = _peak_rss_mib()
+    out["device_memory"] = _device_memory()
+    if args.no_peer:
+        out["peer"], out["peer_error"] = None, "skipped (--no-peer)"
+    else:
+        _progress(quiet, f"[{name}] PyTorch peer ...")
+        out["peer"], out["peer_error"] = run_peer(args.peer_python, args.peer_script, name,
+                                                  args.threads, warmup, repeats, args.repeats)
+    peer = out["peer"]
+    out["peer_params_minus_ours"] = None if peer is None else peer["params"] - out["params"]
+    out["peer_step_over_ours"] = (None if peer is None else
+                                  round(peer["train_step_s_median"] / out["train_step_s"], 2))
+    out["peer_window_over_ours"] = (
+        None if peer is None else round(1e3 * peer["infer_window_s_median"] / out["window_ms"],
+                                        2))
+    return out
+
+
+def _fmt(value, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def print_table(presets: dict, seeds: dict) -> None:
+    head = (f"{'preset':7}{'params':>11}{'step s':>9}{'compile s':>10}{'window ms':>10}"
+            f"{'60s reuse s':>12}{'60s full s':>11}{'speedup':>8}{'peer step':>10}"
+            f"{'peer win':>9}{'RSS MiB':>9}")
+    print(head)
+    for name, r in presets.items():
+        peer = r["peer"] or {}
+        win = peer.get("infer_window_s_median")
+        print(f"{name:7}{r['params']:>11,}{r['train_step_s']:>9.3f}{r['train_compile_s']:>10.1f}"
+              f"{r['window_ms']:>10.1f}{r['sequence']['reuse_s']:>12.3f}"
+              f"{r['sequence']['full_s']:>11.3f}{r['sequence']['speedup']:>8.1f}"
+              f"{_fmt(peer.get('train_step_s_median'), '10.3f'):>10}"
+              f"{_fmt(None if win is None else 1e3 * win, '9.1f'):>9}"
+              f"{r['peak_rss_mib_after']:>9.0f}")
+        if r["peer"] is None:
+            print(f"  {name} peer: {r['peer_error']}")
+        else:
+            print(f"  {name}: peer/ours step {r['peer_step_over_ours']}x, "
+                  f"window {r['peer_window_over_ours']}x (peer {peer['params']:,} params, "
+                  f"peak RSS {peer['peak_rss_mib']:.0f} MiB)")
+    s = seeds
+    print(f"small, K={s['k']} vmapped seeds: {s['step_s']:.3f} s per step = "
+          f"{s['per_seed_s']:.3f} s per seed vs {s['one_seed_s']:.3f} s for one seed: "
+          f"ratio {s['per_seed_ratio']:.2f} (peak RSS {s['peak_rss_mib_after']:.0f} MiB after)")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("--small-only", action="store_true",
+                    help="skip the paper preset (quick runs)")
+    ap.add_argument("--repeats", type=positive_int, default=5,
+                    help="timed runs per measurement, after warm-up [default: 5]")
+    ap.add_argument("--heavy-repeats", type=positive_int, default=3,
+                    help="at most this many timed runs of the paper preset's training step "
+                         "and 60 s sequence, and of the peer's paper training step "
+                         "[default: 3]")
+    ap.add_argument("--threads", type=positive_int, default=len(os.sched_getaffinity(0)),
+                    help="the peer's torch threads [default: the CPUs this process may use, "
+                         "which is what sizes XLA's pool]")
+    ap.add_argument("--peer-python", type=Path, default=DEFAULT_PEER_PYTHON,
+                    help="interpreter with torch for the peer [default: ../peer-venv]")
+    ap.add_argument("--peer-script", type=Path, default=DEFAULT_PEER_SCRIPT)
+    ap.add_argument("--no-peer", action="store_true", help="do not run the PyTorch peer")
+    ap.add_argument("--json-only", action="store_true",
+                    help="print only the JSON line (no progress, no table)")
+    args = ap.parse_args(argv)
+
+    cpus = len(os.sched_getaffinity(0))
+    summary: dict = {
+        "device": str(jax.devices()[0]), "jax": jax.__version__,
+        "cpu_count": os.cpu_count(), "schedulable_cpus": cpus, "threads": args.threads,
+        "threads_note": ("XLA's pool uses the schedulable CPUs; the peer uses --threads"
+                         + ("" if args.threads == cpus else " (they differ: use taskset)")),
+        "machine": platform.machine(), "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "repeats": args.repeats, "heavy_repeats": args.heavy_repeats,
+        "memory_source": "peak RSS: resource.getrusage(RUSAGE_SELF).ru_maxrss (running max); "
+                         "xla_temp: Compiled.memory_analysis(); device_memory: "
+                         "Device.memory_stats() (None on XLA:CPU)",
+        "window_target_ms": WINDOW_TARGET_MS,
+    }
+    load_before = os.getloadavg()[0]
+    rng = np.random.default_rng(0)
+    names = ["small"] if args.small_only else ["small", "paper"]  # small first: see RSS
+    presets = {name: bench_preset(name, args, rng, args.json_only) for name in names}
+    _progress(args.json_only, f"[small] K={SEEDS_K} seeds ...")
+    batch_size, per_window, d_model = PRESETS["small"]
+    w, h = WindowConfig().size
+    seeds = bench_seeds(preset_config(batch_size, d_model),
+                        synthetic_batch(rng, batch_size, per_window, (h, w)), SEEDS_K,
+                        args.repeats, 2, presets["small"]["train_step_s"])
+    seeds["peak_rss_mib_after"] = _peak_rss_mib()
+    main_name = names[-1]
+    top = presets[main_name]
+    summary.update({
+        "preset": main_name, "params": top["params"], "train_step_s": top["train_step_s"],
+        "window_ms": top["window_ms"], "window_meets_100ms": top["window_meets_100ms"],
+        "sequence_speedup": top["sequence"]["speedup"],
+        "peer_step_over_ours": top["peer_step_over_ours"],
+        "peer_window_over_ours": top["peer_window_over_ours"],
+        "seeds_per_seed_ratio": seeds["per_seed_ratio"],
+        "peak_rss_mib": _peak_rss_mib(),
+        "load_avg_1min": [load_before, os.getloadavg()[0]],
+        "presets": presets, "seeds": seeds,
+    })
+    if not args.json_only:
+        print_table(presets, seeds)
+    print_json(summary)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
