@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 
 from uavcal_jax.argtypes import parse_offset, positive_int, print_json
-from uavcal_jax.calib.checkpoint import KINDS
 from uavcal_jax.errors import DataError
 from uavcal_jax.xla_cache import enable_compilation_cache
 
@@ -52,13 +51,12 @@ examples:
   uavcal calib predict --checkpoint runs/cal --sequence data/V1_01 --inject 0.02,0,0,0.1,0,0
   uavcal vio --sequence sims/V1_01 --out traj.txt --offsets offsets.json"""
 
-#: Trial folder names of loo/kfold runs.
-TRIAL_FORMAT = "trial_{:02d}"
 #: Headline validation metrics averaged over trials.
 HEADLINE = ("val_loss", "val_offset_rmse", "val_sign_f1", "baseline_offset_rmse")
 
 
 def register(subparsers) -> None:
+    from uavcal_jax.calib.checkpoint import KINDS
     from uavcal_jax.calib.config import PROTOCOLS, InjectionConfig, TrainConfig
     from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig
 
@@ -130,90 +128,45 @@ def register(subparsers) -> None:
 # ----------------------------------------------------------------------------- configuration
 
 
-def _section(sets: list[str]) -> dict[str, list[str]]:
-    out: dict[str, list[str]] = {"window": [], "loop": [], "calib": []}
-    for text in sets:
-        if "=" not in text:
-            raise DataError(f"--set {text!r} is not KEY=VALUE")
-        head = text.split(".", 1)[0].strip()
-        if head in ("window", "loop"):
-            out[head].append(text.split(".", 1)[1])
-        else:
-            out["calib"].append(text)
-    return out
-
-
-def _apply(obj, sets: list[str], prefix: str):
-    from uavcal_jax.calib.config import with_overrides
+def train_configs(args):
+    """``(CalibConfig, LoopConfig, WindowConfig)`` of parsed ``calib train`` arguments."""
+    from uavcal_jax.calib.protocols import resolve_configs
 
     try:
-        return with_overrides(obj, sets)
+        return resolve_configs(args.set, protocol=args.protocol, validation=args.validation,
+                               seeds=args.seeds, epochs=args.epochs)
     except KeyError as err:
-        key = str(err.args[0]).split("'")[1] if "'" in str(err.args[0]) else str(err.args[0])
-        raise DataError(f"--set: unknown configuration key {prefix + key!r} (sections: model, "
+        raise DataError(f"--set: unknown configuration key {err.args[0]!r} (sections: model, "
                         "loss, injection, train, window, loop)") from None
     except (ValueError, TypeError) as err:
         raise DataError(f"--set: {err}") from None
 
 
-def train_configs(args):
-    """``(CalibConfig, LoopConfig, WindowConfig)`` of parsed ``calib train`` arguments."""
-    from uavcal_jax.calib.config import CalibConfig, with_overrides
-    from uavcal_jax.calib.loop import LoopConfig
-    from uavcal_jax.data.windows import WindowConfig
-
-    sets = _section(args.set)
-    calib = with_overrides(CalibConfig(), {"injection.protocol": args.protocol,
-                                           "train.epochs": args.epochs,
-                                           "train.seeds": args.seeds})
-    calib = _apply(calib, sets["calib"], "")
-    loop = _apply(LoopConfig(validation=args.validation), sets["loop"], "loop.")
-    window = _apply(WindowConfig(), sets["window"], "window.")
-    return calib, loop, window
-
-
 # ----------------------------------------------------------------------------- train
 
 
-def _trials(parts, loop):
-    from uavcal_jax.calib.data import kfold_windows, leave_one_out, split_windows
-
-    if loop.validation == "split":
-        return split_windows(parts, loop.val_fraction, loop.split_seed)
-    if loop.validation == "loo":
-        return leave_one_out(parts)
-    return kfold_windows(parts, loop.folds)
-
-
-def _sides(train, val) -> dict:
-    return {side: [{"source": p.source, "indices": p.indices.tolist()} for p in parts]
-            for side, parts in (("train", train), ("val", val))}
-
-
 def _aggregate(rows: list[dict]) -> dict:
-    out = {}
-    for k in HEADLINE:
-        vals = [r[k] for r in rows if r.get(k) is not None]
-        if vals:
-            out[k] = {"mean": float(np.mean(vals)), "std": float(np.std(vals)),
-                      "values": vals}
-    return out
+    from uavcal_jax.calib.protocols import mean_std
+
+    out = {k: mean_std([r.get(k) for r in rows]) for k in HEADLINE}
+    return {k: v for k, v in out.items() if v is not None}
 
 
 def run_train(args) -> int:
     from uavcal_jax.calib.data import load_windows
     from uavcal_jax.calib.loop import fit
+    from uavcal_jax.calib.protocols import TRIAL_FORMAT, trial_sides, validation_trials
 
     calib, loop, window = train_configs(args)
     enable_compilation_cache()
     parts = load_windows(args.data, window)
-    trials = _trials(parts, loop)
+    trials = validation_trials(parts, loop)
     out = Path(args.out)
     results = []
     for i, (train, val) in enumerate(trials):
         run_dir = out if len(trials) == 1 else out / TRIAL_FORMAT.format(i)
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "data.json").write_text(json.dumps(_sides(train, val)) + "\n")
+        (run_dir / "data.json").write_text(json.dumps(trial_sides(train, val)) + "\n")
         res = fit(calib, train, val, run_dir, resume=args.resume, progress=not args.json,
                   loop=loop, stop_after=args.stop_after)
         results.append({**res.summary, "held_out": [p.source for p in val]})
@@ -299,6 +252,7 @@ def run_eval(args) -> int:
 
 def _predict_run_dir(checkpoint: str | None) -> Path:
     from uavcal_jax.calib.pretrained import default_weights
+    from uavcal_jax.calib.protocols import TRIAL_FORMAT
 
     if checkpoint is None:
         return default_weights()
