@@ -222,3 +222,17 @@ def _check_predict(full, seqs, tmp_path, capsys):
     assert main(["calib", "predict", "--checkpoint", str(trial), "--sequence",
                  str(tmp_path / "nope")]) == 2
     _one_line(capsys, "nope")
+
+
+def test_predict_real_micro_slice_with_the_shipped_weights(euroc_micro, tmp_path, capsys):
+    # 4.7 s of real V1_01 (95 frames): the shipped model's 2 s windows, one estimate each,
+    # inside the physical range it was trained on; the offsets file feeds `uavcal vio`
+    out = tmp_path / "offsets.json"
+    with pytest.warns(DataRepairWarning):  # the slice's cam1 lists 4 frames it lacks
+        assert main(["calib", "predict", "--sequence", str(euroc_micro), "--out", str(out),
+                     "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["windows"] == int((4.7 - 2.0) / 0.5) + 1 and res["true"] is None
+    est = np.asarray(res["offset"])
+    assert np.all(np.abs(est[:3]) <= 0.08) and np.all(np.abs(est[3:]) <= 0.16)
+    np.testing.assert_allclose(read_offset_json(out), est)
