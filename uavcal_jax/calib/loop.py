@@ -215,11 +215,8 @@ def read_run_config(run_dir: str | Path) -> tuple[CalibConfig, LoopConfig, Windo
     return config, loop, window, saved
 
 
-def restore_run(run_dir: str | Path, parts: list[Windows], kind: str = "best"
-                ) -> tuple[CalibState, int]:
-    """``(state, seeds)`` of a run folder's ``kind`` checkpoint (``"best"`` or ``"last"``);
-    ``parts`` (windows cut with the run's window configuration) fix the input shapes and
-    must match the run's (one-line :class:`DataError` otherwise)."""
+def _restore(run_dir: str | Path, parts: list[Windows], kind: str) -> tuple[dict, dict, int]:
+    """``(tree, meta, seeds)`` of a run folder's ``kind`` checkpoint."""
     config, loop, _, _ = read_run_config(run_dir)
     seeds = config.train.seeds
     stats = training_statistics(parts, config.model.imu_channels,
@@ -227,7 +224,16 @@ def restore_run(run_dir: str | Path, parts: list[Windows], kind: str = "best"
     abstract = {"state": _init_state(config, parts, stats, seeds, abstract=True),
                 "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
     with RunCheckpoints(run_dir, keep=loop.keep, read_only=True) as ckpt:
-        tree, _ = ckpt.restore(kind, abstract, resolved_config(config, loop, parts))
+        tree, meta = ckpt.restore(kind, abstract, resolved_config(config, loop, parts))
+    return tree, meta, seeds
+
+
+def restore_run(run_dir: str | Path, parts: list[Windows], kind: str = "best"
+                ) -> tuple[CalibState, int]:
+    """``(state, seeds)`` of a run folder's ``kind`` checkpoint (``"best"`` or ``"last"``);
+    ``parts`` (windows cut with the run's window configuration) fix the input shapes and
+    must match the run's (one-line :class:`DataError` otherwise)."""
+    tree, _, seeds = _restore(run_dir, parts, kind)
     return tree["state"], seeds
 
 
@@ -239,14 +245,7 @@ def export_weights(run_dir: str | Path, target: str | Path, parts: list[Windows]
     It restores like any run (:func:`restore_run`, ``kind``) but does not resume training.
     Written into a temporary sibling and renamed, so ``target`` is whole or absent."""
     run_dir, target = Path(run_dir), Path(target)
-    config, loop, _, _ = read_run_config(run_dir)
-    seeds = config.train.seeds
-    stats = training_statistics(parts, config.model.imu_channels,
-                                config.injection.single_sensor)
-    abstract = {"state": _init_state(config, parts, stats, seeds, abstract=True),
-                "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
-    with RunCheckpoints(run_dir, keep=loop.keep, read_only=True) as ckpt:
-        tree, meta = ckpt.restore(kind, abstract, resolved_config(config, loop, parts))
+    tree, meta, _ = _restore(run_dir, parts, kind)
     state = tree["state"]
     tree["state"] = state.replace(opt_state=jax.tree.map(jnp.zeros_like, state.opt_state))
     tmp = target.with_name(f".{target.name}.partial")
