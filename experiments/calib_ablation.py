@@ -58,8 +58,7 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
-from _calib_common import (
-    # the script's folder is first on sys.path,
+from _calib_common import (  # the script's folder is first on sys.path
     ROOT,
     Budget,
     Job,

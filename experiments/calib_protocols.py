@@ -57,8 +57,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from _calib_common import (
-    # the script's folder is first on sys.path,
+from _calib_common import (  # the script's folder is first on sys.path
     ROOT,
     Budget,
     Job,

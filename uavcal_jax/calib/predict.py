@@ -32,8 +32,8 @@ from uavcal_jax.data.windows import WindowSet
 from uavcal_jax.errors import DataError
 from uavcal_jax.sim.simulate import SIM_CONFIG_FILE
 
-__all__ = ["SequencePrediction", "channel_names", "expand_to_six", "predict_recording",
-           "predict_sequence", "recorded_offset"]
+__all__ = ["SequencePrediction", "channel_names", "expand_to_six", "model_channels",
+           "predict_recording", "predict_sequence", "recorded_offset"]
 
 GYRO_CHANNELS = ("gx", "gy", "gz")
 ACCEL_CHANNELS = ("ax", "ay", "az")
@@ -67,13 +67,18 @@ def channel_names(channels: int, sensor: str) -> tuple[str, ...]:
     return GYRO_CHANNELS if sensor == "gyro" else ACCEL_CHANNELS
 
 
+def model_channels(channels: int, sensor: str) -> slice:
+    """Where a model's ``channels`` (6, or 3 of ``sensor``) sit in a ``(6,)`` offset."""
+    if channels == 6:
+        return slice(0, 6)
+    return slice(0, 3) if sensor == "gyro" else slice(3, 6)
+
+
 def expand_to_six(offset, sensor: str) -> np.ndarray:
     """A ``(6,)`` offset from a 6- or 3-channel one (the other sensor's channels 0)."""
     offset = np.asarray(offset, np.float64).reshape(-1)
-    if offset.size == 6:
-        return offset
     out = np.zeros(6)
-    out[slice(0, 3) if sensor == "gyro" else slice(3, 6)] = offset
+    out[model_channels(offset.size, sensor)] = offset
     return out
 
 
@@ -143,11 +148,11 @@ def recorded_offset(root: str | Path) -> np.ndarray | None:
 
 
 def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = "best",
-                      inject=None) -> tuple[dict, SequencePrediction]:
+                      inject_offset=None) -> tuple[dict, SequencePrediction]:
     """``(summary, prediction)`` of the run folder's ``kind`` checkpoint on the EuRoC folder
     ``sequence``, cut into the run's windows (black frames masked, as in training).
 
-    ``inject``: ``(6,)`` added to the recorded IMU first (only the model's channels are
+    ``inject_offset``: ``(6,)`` added to the recorded IMU first (only the model's channels are
     used). The true offset is known when ``sequence`` is a simulated recording with an
     offset (:func:`recorded_offset`) and/or ``inject`` is given: then ``summary`` holds it,
     the ``error`` of the median and its ``rmse``. ``summary`` is JSON-ready.
@@ -161,15 +166,14 @@ def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = 
     channels = config.model.imu_channels
     (part,) = load_windows([sequence], window)
     state, seeds = restore_run(run_dir, [part], kind=kind)
-    pick = (slice(None) if channels == 6 else
-            slice(0, 3) if sensor == "gyro" else slice(3, 6))
-    shift = None if inject is None else np.asarray(inject, np.float64)[pick]
+    pick = model_channels(channels, sensor)
+    shift = None if inject_offset is None else np.asarray(inject_offset, np.float64)[pick]
     prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
     recorded = recorded_offset(sequence)
     true = None
-    if recorded is not None or inject is not None:
+    if recorded is not None or inject_offset is not None:
         true = (np.zeros(6) if recorded is None else recorded) + (
-            np.zeros(6) if inject is None else np.asarray(inject, np.float64))
+            np.zeros(6) if inject_offset is None else np.asarray(inject_offset, np.float64))
         true = true[pick]
     error = None if true is None else prediction.median - true
     summary = {
@@ -181,7 +185,8 @@ def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = 
         "per_window_std": prediction.per_window.std(axis=0).tolist(),
         "per_window": prediction.per_window.tolist(),
         "window_start_s": prediction.start_s.tolist(),
-        "injected": None if inject is None else np.asarray(inject, float).tolist(),
+        "injected": None if inject_offset is None else np.asarray(inject_offset,
+                                                                  float).tolist(),
         "recorded": None if recorded is None else recorded.tolist(),
         "true": None if true is None else true.tolist(),
         "error": None if error is None else error.tolist(),

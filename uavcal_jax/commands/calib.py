@@ -305,7 +305,7 @@ def run_predict(args) -> int:
     enable_compilation_cache()
     run_dir = _predict_run_dir(args.checkpoint)
     summary, prediction = predict_recording(run_dir, args.sequence, kind=args.kind,
-                                            inject=args.inject)
+                                            inject_offset=args.inject)
     true = None if summary["true"] is None else np.asarray(summary["true"])
     sensor = summary["sensor"]
     if args.out is not None:

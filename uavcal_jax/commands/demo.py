@@ -23,8 +23,6 @@ DEMO_RESOLUTION = (376, 240)
 #: The constant offset the demo's IMU carries (gyro rad/s xyz, accel m/s^2 xyz): a
 #: miscalibration in the range of real MEMS biases (EuRoC's: ~0.08 rad/s, ~0.16 m/s^2).
 DEMO_IMU_OFFSET = (0.02, -0.015, 0.01, 0.08, -0.06, 0.1)
-#: Channel names of an offset, in order.
-OFFSET_CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
 
 
 @dataclass(frozen=True)
@@ -78,7 +76,7 @@ def _calibrate(ctx: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
 
     from uavcal_jax.calib.baselines import ground_truth_bias, sequence_offset
-    from uavcal_jax.calib.predict import expand_to_six, predict_recording
+    from uavcal_jax.calib.predict import channel_names, expand_to_six, predict_recording
     from uavcal_jax.calib.pretrained import default_weights
 
     seq = ctx["sequence"]
@@ -92,7 +90,7 @@ def _calibrate(ctx: dict[str, Any]) -> dict[str, Any]:
         total = np.asarray(sequence_offset(seq))
     least_squares = total - ground_truth_bias(seq.ground_truth)
     ctx["offset_estimate"] = transformer
-    return {"channels": list(OFFSET_CHANNELS), "true": true.tolist(),
+    return {"channels": list(channel_names(6, "gyro")), "true": true.tolist(),
             "transformer": transformer.tolist(), "transformer_error": (transformer - true).tolist(),
             "windows": summary["windows"], "window_s": summary["window_s"],
             "weights": summary["run"],
