@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from threadpoolctl import threadpool_limits
 
 from uavcal_jax.data.sequence import GroundTruth, ImuData, Sequence
 from uavcal_jax.errors import DataError, DataRepairWarning
@@ -26,7 +27,8 @@ from uavcal_jax.progress import progress
 from uavcal_jax.vio.estimator import FrameEstimate, StereoVio
 from uavcal_jax.vio.estimator_config import EstimatorConfig
 
-__all__ = ["PAIR_TOLERANCE_NS", "VioResult", "estimate_stream", "run_vio", "stereo_pairs"]
+__all__ = ["PAIR_TOLERANCE_NS", "VioResult", "estimate_stream", "one_blas_thread", "run_vio",
+           "stereo_pairs"]
 
 #: Largest left/right timestamp difference still paired as one stereo frame, ns.
 PAIR_TOLERANCE_NS = 1_000_000
@@ -167,9 +169,26 @@ def run_vio(sequence: Sequence, config: EstimatorConfig | None = None,
     return VioResult(frames, vio.resets, unreadable[0], vio.config, offset)
 
 
+def one_blas_thread() -> threadpool_limits:
+    """Context manager: every BLAS loaded in the process (the OpenBLAS builds of NumPy, of
+    SciPy -- whose LAPACK jaxlib's CPU kernels call for the window's Cholesky and
+    eigen-decompositions -- and of OpenCV) limited to one thread, restored on exit.
+
+    The VIO's matrices are small (the 150 x 150 Schur complement at most), too small to gain
+    from a second BLAS thread, and OpenBLAS's threads busy-wait for work: on a CPU shared with
+    other processes (or with the VIO's own front-end thread) a waiting thread burns the core
+    its partner needs. On the 2-core development machine, shared with background jobs, a
+    simulated V1_02 flight took 340-380 ms of CPU per frame with OpenBLAS's default two
+    threads (single window solves stalling up to 0.7 s) and 38-51 ms with one. The setting is
+    process-wide, so it is applied at this edge, around a whole run.
+    """
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def estimate_stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]],
                     pipelined: bool = True) -> Iterator[FrameEstimate]:
-    """:class:`FrameEstimate` of each input, in order.
+    """:class:`FrameEstimate` of each input, in order, under :func:`one_blas_thread` (held
+    until the generator finishes or is closed).
 
     ``inputs`` yields callables returning ``(t_ns, left, right)`` (so images load lazily,
     in the front end's thread). ``pipelined``: the front end of frame ``k + 1`` (loading,
@@ -178,6 +197,12 @@ def estimate_stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]],
     estimate's ``timings["wall"]`` is then the wall-clock time since the previous estimate
     (the throughput a caller sees). Otherwise the stages alternate in this thread.
     """
+    with one_blas_thread():
+        yield from _stream(vio, inputs, pipelined)
+
+
+def _stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]], pipelined: bool
+            ) -> Iterator[FrameEstimate]:
     def front(load):
         return vio.track(*load())
 
