@@ -1,18 +1,24 @@
 """Shared parts of the calibrator experiments (``calib_protocols.py``, ``calib_ablation.py``).
 
-- The two configurations: **budget** (:data:`BUDGET_SETTINGS`, a model and windows small
-  enough for minutes on 2 CPU cores) and **paper** (Table 2 of Avola et al. 2023, which are
-  the package defaults), both as ``uavcal calib train --set`` strings.
+- The two modes, both presets of :data:`uavcal_jax.calib.protocols.PRESETS` (what ``uavcal
+  calib train --preset`` reads): **budget** = ``small`` (160x96 frames in 32x32 patches at
+  10 Hz, d 64, pre-norm, AdamW 1e-3, the loss in each channel's offset units, patience 10),
+  with non-overlapping windows (``window.stride`` = ``window.duration``, :func:`resolve`);
+  **paper** (``--paper``) = ``paper`` (Table 2 of Avola et al. 2023, the package defaults,
+  1 s stride). ``--set`` strings apply last, in either mode.
 - Run settings, trials and statistics come from :mod:`uavcal_jax.calib.protocols`, as for
   ``uavcal calib train``.
 - The simulated sets (:func:`uavcal_jax.calib.sim_sets.simulated_set`, rendered once into the
-  cache) and their windows, optionally with every ``k``-th frame kept (:func:`decimate`).
+  cache) and their windows.
 - :func:`train_jobs`: a time budget spread over many fits as **one common epoch count**: every
   fit runs two epochs (the second times an epoch without its compile), then rounds raise all
   unfinished fits to a common target as far as the time left allows, resuming them from their
   checkpoints (``fit(resume=True, stop_after=n)``; a resumed run equals an uninterrupted one).
-  Fits of one table thus train equally long (or stop early by the paper's patience), and the
-  time a fit frees by stopping early goes to the others.
+  Fits of one table thus train equally long (or stop early by their configuration's patience
+  on the training loss, the paper's criterion), and the time a fit frees by stopping early
+  goes to the others. Fits validate nothing per epoch (unless ``loop.monitor=val``): the time
+  left for the final evaluations is set aside instead, and :func:`evaluate_best` evaluates
+  each fit's best checkpoint once, with ``loop.val_offsets`` offsets.
 """
 
 from __future__ import annotations
@@ -20,7 +26,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import gc
-import json
 import math
 import sys
 import time
@@ -32,62 +37,55 @@ import jax
 import numpy as np
 
 from uavcal_jax.calib.config import CalibConfig, TrainConfig
-from uavcal_jax.calib.data import (
-    Windows,
-    load_windows,
-)
-from uavcal_jax.calib.loop import LoopConfig, fit
+from uavcal_jax.calib.data import Windows
+from uavcal_jax.calib.loop import LoopConfig, evaluate, fit, restore_run
+from uavcal_jax.calib.protocols import resolve_configs
 from uavcal_jax.calib.sim_sets import SimSetConfig, sequence_configs, simulated_set
 from uavcal_jax.data.windows import WindowConfig, WindowSet
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = ROOT / "experiments" / "out" / "calib_cache"
-#: Budget mode (``--set`` strings): 160x96 gray frames in 32x32 patches (5x3 patches), d 64,
-#: 4 heads, 2 layers, 2 s windows, batch 16 and a learning rate of 1e-3 (the paper's 1e-5
-#: needs its 100 epochs); everything else as the paper. Each script adds its window stride
-#: and frame step (the sizes that set its cost).
-BUDGET_SETTINGS = ("model.d_model=64", "model.heads=4", "model.layers=2", "model.patch=32,32",
-                   "train.learning_rate=1e-3", "window.size=160x96", "window.duration=2")
-#: Paper mode: Table 2 is the package default (d 256, 8 heads, 2 layers, patch 64x64, 320x180,
-#: 10 s windows, 1 s stride, batch 16, lr 1e-5, 100 epochs, patience 3).
-PAPER_SETTINGS: tuple[str, ...] = ()
+#: The presets (:data:`uavcal_jax.calib.protocols.PRESETS`) of the two modes.
+BUDGET_PRESET, PAPER_PRESET = "small", "paper"
+#: Forward pass over a window / one training step's work on it (forward, backward, AdamW),
+#: rounded up from the video model's 0.34 on 2 cores: sizes the time set aside for the final
+#: evaluations.
+FORWARD_SHARE = 0.5
+#: Seconds per final evaluation besides its forward passes (restore, compile lookups).
+EVAL_OVERHEAD_S = 5.0
 
 
-def add_common_arguments(ap: argparse.ArgumentParser, out_default: Path,
-                         budget_frame_step: int) -> None:
-    """The options both scripts share (``budget_frame_step``: the budget mode's default
-    ``--frame-step``; the paper mode's is 1)."""
+def add_common_arguments(ap: argparse.ArgumentParser, out_default: Path) -> None:
+    """The options both scripts share."""
     from uavcal_jax.argtypes import positive, positive_int
 
     ap.add_argument("--budget", type=positive, default=20.0, metavar="MINUTES",
-                    help="wall-clock budget of the whole script; the epoch count is chosen "
-                         "to fill it (ignored with --paper) [default: %(default)s]")
+                    help="wall-clock budget of the whole script; the common epoch count is "
+                         "chosen to fill it (ignored with --paper) [default: %(default)s]")
     ap.add_argument("--paper", action="store_true",
-                    help="the paper's configuration (Table 2) and its full epochs with early "
-                         "stopping, no time limit (days on a CPU)")
+                    help=f"the {PAPER_PRESET!r} preset (Table 2) and its full epochs with "
+                         "early stopping, no time limit (days on a CPU) [default: the "
+                         f"{BUDGET_PRESET!r} preset, non-overlapping windows]")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE,
                     help="simulated-set cache [default: %(default)s]")
     ap.add_argument("--out", type=Path, default=out_default,
                     help="output folder [default: %(default)s]")
-    ap.add_argument("--sequences", type=_names, default=None, metavar="A,B,...",
+    ap.add_argument("--sequences", type=names_list, default=None, metavar="A,B,...",
                     help="keep only these simulated sequences (trajectory names, e.g. "
                          "MH_01_easy,V1_01_easy,indoor_45_2) [default: all]")
     ap.add_argument("--max-duration", type=positive, default=None, metavar="S",
                     help="cap every simulated sequence at S seconds (a separate cache entry; "
                          "for smoke runs) [default: whole trajectories]")
-    ap.add_argument("--frame-step", type=positive_int, default=None, metavar="K",
-                    help="keep every K-th frame slot of each window (and its IMU sample): "
-                         f"T / K frames per window at 20 / K Hz [default: {budget_frame_step}, "
-                         "with --paper 1]")
-    ap.set_defaults(budget_frame_step=budget_frame_step)
     ap.add_argument("--max-epochs", type=positive_int, default=None, metavar="N",
                     help=f"most epochs of a fit [default: train.epochs, {TrainConfig.epochs}]")
     ap.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
-                    help="more `uavcal calib train --set` fields, applied after the mode's")
+                    help="more `uavcal calib train --set` fields (window.*, loop.* included), "
+                         "applied after the mode's preset, e.g. window.frame_step=4")
     ap.add_argument("--quiet", action="store_true", help="no progress bars or log lines")
 
 
-def _names(text: str) -> tuple[str, ...]:
+def names_list(text: str) -> tuple[str, ...]:
+    """``"A,B"`` -> ``("A", "B")`` (an argparse type)."""
     return tuple(n.strip() for n in text.split(",") if n.strip())
 
 
@@ -100,28 +98,39 @@ def log(quiet: bool, *parts) -> None:
 # ----------------------------------------------------------------------------- configuration
 
 
-def mode_settings(args: argparse.Namespace, budget_extra: Sequence[str] = ()) -> list[str]:
-    """The mode's ``--set`` strings (budget: :data:`BUDGET_SETTINGS` and the script's
-    ``budget_extra``), then the user's ``--set``; fills in ``args.frame_step``."""
-    if args.frame_step is None:
-        args.frame_step = 1 if args.paper else args.budget_frame_step
-    mode = PAPER_SETTINGS if args.paper else (*BUDGET_SETTINGS, *budget_extra)
-    return [*mode, *args.set]
+def preset(args: argparse.Namespace) -> str:
+    """The mode's preset name."""
+    return PAPER_PRESET if args.paper else BUDGET_PRESET
 
 
-def describe(calib: CalibConfig, window: WindowConfig, frames_per_window: int | None,
-             frame_step: int) -> str:
+def resolve(args: argparse.Namespace, sets: Sequence[str] = (), **kwargs
+            ) -> tuple[CalibConfig, LoopConfig, WindowConfig]:
+    """:func:`~uavcal_jax.calib.protocols.resolve_configs` of the mode: its preset, the
+    arguments ``kwargs``, the script's ``sets``, then ``--set``. Budget mode cuts
+    non-overlapping windows (``window.stride`` = ``window.duration``) unless a setting gives
+    the stride: the same data per epoch at a tenth of the paper's 1 s stride's cost."""
+    sets = [*sets, *args.set]
+    calib, loop, window = resolve_configs(sets, preset=preset(args), **kwargs)
+    if not args.paper and not any(s.split("=")[0].strip() == "window.stride" for s in sets):
+        window = dataclasses.replace(window, stride=window.duration)
+    return calib, loop, window
+
+
+def describe(calib: CalibConfig, window: WindowConfig, frames_per_window: int | None) -> str:
     """One line naming the model, windows and optimiser of a run (the tables' header)."""
     m, t = calib.model, calib.train
-    rate = f", every {frame_step}th frame" if frame_step > 1 else ""
+    rate = f", every {window.frame_step}th frame" if window.frame_step > 1 else ""
     frames = "?" if frames_per_window is None else frames_per_window
     return (f"frames {window.size[0]}x{window.size[1]} {window.color}, patch "
-            f"{m.patch[0]}x{m.patch[1]}, d {m.d_model}, {m.heads} heads, {m.layers} layers, "
-            f"dropout {m.dropout:g}, {'video + IMU' if m.use_video else 'IMU only'}; "
+            f"{m.patch[0]}x{m.patch[1]}, d {m.d_model}, {m.heads} heads, {m.layers} "
+            f"{'pre' if m.norm_first else 'post'}-norm layers, dropout {m.dropout:g}, "
+            f"{'video + IMU' if m.use_video else 'IMU only'}, "
+            f"{'standardised' if m.standardize else 'raw SI'} IMU in and offsets out; "
             f"{window.duration:g} s windows ({frames} frames{rate}) every "
             f"{window.stride:g} s; batch {t.batch_size}, AdamW lr {t.learning_rate:g}, "
-            f"patience {t.patience}; loss sign term {calib.loss.sign_term!r}; injection "
-            f"{calib.injection.protocol!r} (n_m {calib.injection.noise_multiplier:g})")
+            f"patience {t.patience}; loss sign term {calib.loss.sign_term!r}, "
+            f"{calib.loss.units} units; injection {calib.injection.protocol!r} "
+            f"(n_m {calib.injection.noise_multiplier:g})")
 
 
 # ----------------------------------------------------------------------------- data
@@ -148,19 +157,6 @@ def render(family: str, names: Sequence[str], max_duration: float | None, cache:
     return simulated_set(cfg, cache, progress=not quiet)
 
 
-def decimate(ws: WindowSet, step: int) -> WindowSet:
-    """``ws`` with every ``step``-th frame slot of each window kept (``T -> ceil(T / step)``
-    slots, frames and their nearest IMU samples at ``rate / step``); the full-rate IMU
-    (``imu_range``, used by the least-squares baseline) and the shared frames stay."""
-    if step == 1:
-        return ws
-    index = np.ascontiguousarray(ws.frame_index[:, ::step])
-    return dataclasses.replace(ws, frame_index=index,
-                               frame_mask=np.ascontiguousarray(ws.frame_mask[:, ::step]),
-                               meta={**ws.meta, "frame_step": step,
-                                     "frames_per_window": index.shape[1]})
-
-
 def window_subset(ws: WindowSet, indices) -> WindowSet:
     """The windows ``indices`` of ``ws`` as a WindowSet of their own (frames shared)."""
     idx = np.asarray(indices, np.int64)
@@ -168,11 +164,9 @@ def window_subset(ws: WindowSet, indices) -> WindowSet:
                                frame_mask=ws.frame_mask[idx], imu_range=ws.imu_range[idx])
 
 
-def load_parts(folders: Sequence[Path], window: WindowConfig, frame_step: int
-               ) -> list[Windows]:
-    """Every window of ``folders`` (:func:`uavcal_jax.calib.data.load_windows`), decimated."""
-    return [p._replace(windows=decimate(p.windows, frame_step))
-            for p in load_windows(folders, window)]
+def count(parts: Sequence[Windows]) -> int:
+    """Windows in ``parts``."""
+    return int(sum(len(p.indices) for p in parts))
 
 
 # ----------------------------------------------------------------------------- budget
@@ -207,6 +201,7 @@ class Job:
     epoch_s: float = math.nan  # seconds per epoch, from the last call (the first: with compile)
     first_s: float = math.nan  # wall seconds of the first call (compile, init, one epoch)
     train_s: float = 0.0
+    eval_share: float = 0.0  # validation windows x offsets / training windows
     calls: int = 0
     releases: int = 0  # times the compiled functions were dropped after this job's calls
     summary: dict = field(default_factory=dict)
@@ -214,6 +209,11 @@ class Job:
     @property
     def max_epochs(self) -> int:
         return self.config.train.epochs
+
+    def eval_estimate_s(self) -> float:
+        """The expected time of this job's final evaluation (:func:`evaluate_best`)."""
+        epoch = 0.0 if math.isnan(self.epoch_s) else self.epoch_s
+        return FORWARD_SHARE * epoch * self.eval_share + EVAL_OVERHEAD_S
 
 
 def release_if_crowded() -> bool:
@@ -247,9 +247,10 @@ def _release(job: Job, quiet: bool) -> None:
 
 def _advance(job: Job, epochs: int, quiet: bool):
     train, val = job.data()
+    job.eval_share = count(val) * job.loop.val_offsets / max(count(train), 1)
     t0 = time.perf_counter()
-    res = fit(job.config, train, val, job.run_dir, resume=job.calls > 0, progress=not quiet,
-              loop=job.loop, stop_after=epochs)
+    res = fit(job.config, train, val if job.loop.monitor == "val" else None, job.run_dir,
+              resume=job.calls > 0, progress=not quiet, loop=job.loop, stop_after=epochs)
     dt = time.perf_counter() - t0
     ran = res.summary["epochs"] - job.epochs
     if job.calls == 0:
@@ -259,10 +260,9 @@ def _advance(job: Job, epochs: int, quiet: bool):
     job.train_s += dt
     job.calls += 1
     job.summary = res.summary
-    b = res.summary["best"]
-    log(quiet, f"  {job.name}: {job.epochs} epochs ({dt:.1f} s), best {res.summary['best_epoch']}"
-               f": val offset RMSE {b.get('val_offset_rmse', math.nan):.4f}, sign F1 "
-               f"{b.get('val_sign_f1', math.nan):.3f}")
+    log(quiet, f"  {job.name}: {job.epochs} epochs ({dt:.1f} s), best epoch "
+               f"{res.summary['best_epoch']}, training loss "
+               f"{res.summary['best'].get('loss', math.nan):.4f}")
     return res
 
 
@@ -273,11 +273,13 @@ def train_jobs(jobs: Sequence[Job], budget: Budget, *, reserve_s: float = 0.0,
     Unlimited budget: each job runs to its ``train.epochs`` (or its early stop) in one call.
     Otherwise each job first runs two epochs in two calls while its compiled steps are in
     memory (the second call times an epoch without the compile), then rounds raise every
-    unfinished job to a common target ``E``: ``E`` grows by ``floor((time left - reserve_s -
-    re-entry) / sum of their epoch times)`` per round until no further epoch fits (re-entry:
-    each job's first-call overhead, counted once compiled functions have been released and
-    must be reloaded). Every job runs its first two epochs even past the budget (recorded).
-    ``after_first(job, fit_result)`` runs after each job's first call (its state in memory).
+    unfinished job to a common target ``E``: ``E`` grows by ``floor((time left - set aside)
+    / sum of their epoch times)`` per round until no further epoch fits. Set aside:
+    ``reserve_s`` (the caller's work after training), every job's final evaluation
+    (:meth:`Job.eval_estimate_s`) and, once compiled functions have been released and must
+    be reloaded, each job's first-call overhead. Every job runs its first two epochs even
+    past the budget (recorded). ``after_first(job, fit_result)`` runs after each job's first
+    call (its state in memory); the time it takes comes out of the budget before the rounds.
     """
     unlimited = budget.seconds is None
     for i, job in enumerate(jobs):
@@ -289,12 +291,13 @@ def train_jobs(jobs: Sequence[Job], budget: Budget, *, reserve_s: float = 0.0,
             _advance(job, 1, quiet)
         _release(job, quiet)
         if i == 0 and not unlimited and len(jobs) > 1:
-            projected = budget.elapsed() + (len(jobs) - 1) * job.first_s
+            projected = budget.elapsed() + (len(jobs) - 1) * 2 * job.epoch_s
             if projected > budget.seconds:
-                log(quiet, f"warning: the first epoch of the {len(jobs)} fits (with their "
-                           f"compiles) will take about {projected / 60:.1f} min, past the "
-                           f"{budget.seconds / 60:g} min budget: fewer sequences or grids, a "
-                           "longer stride or --frame-step fit it")
+                log(quiet, f"warning: the first two epochs of the {len(jobs)} fits will end "
+                           f"about {projected / 60:.1f} min into the run (more with new "
+                           f"compiles), past the {budget.seconds / 60:g} min budget: fewer "
+                           "sequences, trials or grid points, or a larger window.frame_step "
+                           "fit it")
     target, rounds = (None, 0) if unlimited else (max(j.epochs for j in jobs), 0)
     while not unlimited:
         active = [j for j in jobs if not j.stopped and j.epochs < j.max_epochs]
@@ -302,7 +305,8 @@ def train_jobs(jobs: Sequence[Job], budget: Budget, *, reserve_s: float = 0.0,
             break
         released = any(j.releases for j in jobs)
         reentry = sum(max(0.0, j.first_s - j.epoch_s) for j in active) if released else 0.0
-        add = int((budget.left() - reserve_s - reentry) // sum(j.epoch_s for j in active))
+        aside = reserve_s + reentry + sum(j.eval_estimate_s() for j in jobs)
+        add = int((budget.left() - aside) // sum(j.epoch_s for j in active))
         if add < 1:
             break
         target += add
@@ -321,13 +325,16 @@ def train_jobs(jobs: Sequence[Job], budget: Budget, *, reserve_s: float = 0.0,
             "compile_releases": sum(j.releases for j in jobs)}
 
 
-def best_row(job: Job) -> dict:
-    """The job's ``metrics.jsonl`` row of its best epoch (``val_metrics``: per seed)."""
-    best = job.summary["best_epoch"]
-    for line in (job.run_dir / "metrics.jsonl").read_text().splitlines():
-        if line.strip() and json.loads(line)["epoch"] == best:
-            return json.loads(line)
-    raise ValueError(f"{job.run_dir}: no metrics row of epoch {best}")
+def evaluate_best(job: Job, offsets: np.ndarray | None = None, quiet: bool = False):
+    """``(state, seeds, result)``: the job's best checkpoint restored and evaluated on its
+    validation windows by :func:`uavcal_jax.calib.loop.evaluate`, once per offset
+    (``offsets (K, C)``; default the run's ``loop.val_offsets`` draws)."""
+    _, val = job.data()
+    state, seeds = restore_run(job.run_dir, val)
+    result = evaluate(state, val, seeds, offsets=offsets, draws=job.loop.val_offsets,
+                      show=not quiet)
+    _release(job, quiet)
+    return state, seeds, result
 
 
 def budget_record(budget: Budget, paper: bool, minutes: float) -> dict:
@@ -336,6 +343,19 @@ def budget_record(budget: Budget, paper: bool, minutes: float) -> dict:
     return {"mode": "paper" if paper else "budget", "budget_min": None if paper else minutes,
             "wall_s": round(wall, 1),
             "over_budget_s": None if paper else round(max(0.0, wall - 60.0 * minutes), 1)}
+
+
+def mode_line(rec_budget: dict, schedule: dict, max_epochs: int, what: str) -> str:
+    """The tables' first line: the mode, budget, minutes taken and epochs of ``what``."""
+    took = f"took {rec_budget['wall_s'] / 60:.1f} min"
+    if rec_budget["mode"] == "paper":
+        return (f"paper mode (preset {PAPER_PRESET!r}: Table 2, at most {max_epochs} epochs, "
+                f"early stopping on the training loss); {took}")
+    return (f"budget mode (preset {BUDGET_PRESET!r}, non-overlapping windows): "
+            f"{rec_budget['budget_min']:g} min for the whole script ({took}); {what} "
+            f"{schedule['target_epochs']} epochs (two first, then a common count that fills "
+            "the time left; fewer where early stopping ended a fit), best epoch by training "
+            "loss")
 
 
 def fmt_mean_std(stat: dict | None, scale: float = 1.0, digits: int = 3) -> str:

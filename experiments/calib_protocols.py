@@ -4,12 +4,21 @@ al. (Sensors 2023), with Figure 2's predicted-against-true offsets.
 Experiments (``--experiments``): leave-one-sequence-out on the simulated EuRoC set
 (``euroc_loo``) and on the simulated UZH-FPV set (``uzh_fpv_loo``), and k-fold over the
 windows of one long sequence, MH_01_easy (``mh01_kfold``; contiguous blocks); each under the
-paper's injection protocol and the physical one (``--protocols``). Methods, all on the same
-validation windows with the same injected offset (one per trial, drawn by the protocol):
+paper's injection protocol and the physical one (``--protocols``). ``--trials N`` keeps N
+trials of each experiment spread evenly over it (held-out sequences of a LOO in set order,
+folds of the k-fold; the folder ``trial_NN`` keeps the trial's index among all of them, as
+``uavcal calib train --validation loo`` numbers it); ``--trials all`` runs every one.
+
+Methods, all on the same validation windows, each window evaluated once per offset with the
+same ``K = loop.val_offsets`` (8) offsets, each offset shared by every window of the trial (the
+paper's convention) and drawn by the protocol (:func:`uavcal_jax.calib.loop.evaluate`):
 
 - ``transformer``: the video + IMU calibrator, its best epoch (``uavcal calib train``'s fit);
 - ``imu_only``: the same without the video reducer (``model.use_video=false``);
 - ``mean_offset``: the mean of the protocol's training offsets, for every window;
+- ``window_mean``: each window's mean IMU sample minus the training set's mean (no learning;
+  right where the window's motion averages out and gravity's projection matches the training
+  set's mean);
 - ``least_squares``: the classical constant-offset fit of each window's full-rate IMU against
   the ground-truth states (:func:`uavcal_jax.calib.baselines.least_squares_windows`); it
   estimates the stream's whole constant error, i.e. the injected offset **plus** the
@@ -18,32 +27,37 @@ validation windows with the same injected offset (one per trial, drawn by the pr
   injected offset as least squares sees it, an upper bound no method here can reach blind.
 
 Every trial trains with ``train.seed = --seed``, as ``uavcal calib train --validation loo``
-does: the validation offset is then drawn from that seed and, for the paper protocol, the
-trial's training statistics, so the physical protocol injects the same offset into every
-trial. ``--trial-seeds`` gives trial ``i`` the seed ``--seed + i`` (its own offset), at the
-price of one compile per trial (the seed is part of the jitted steps' static configuration).
-Reported: mean and standard deviation over trials of sign F1 and offset RMSE (gyro rad/s and
-accel m/s^2 pooled, as the paper; the per-sensor RMSEs beside), next to the paper's Table 4.
+does: the K offsets are then drawn from that seed and, for the paper protocol, the trial's
+training statistics, so the physical protocol injects the same K offsets into every trial.
+``--trial-seeds`` gives trial ``i`` the seed ``--seed + i`` (its own offsets), at the price of
+one compile per trial (the seed is part of the jitted steps' static configuration). Reported:
+mean and standard deviation over trials of sign F1 and offset RMSE (gyro rad/s and accel
+m/s^2 pooled, as the paper; the per-sensor RMSEs beside), next to the paper's Table 4.
 
-Budget (``--budget``, default 20 min, the whole script): the reduced configuration of
-``_calib_common.BUDGET_SETTINGS`` with 2 s windows every 2 s and every 2nd frame (10 Hz,
-:data:`BUDGET_EXTRA`, :data:`BUDGET_FRAME_STEP`); every fit first runs two epochs, then all
-fits are raised together to a common epoch count that fills the time left (see
-``experiments/_calib_common.py``). ``--paper`` selects Table 2's configuration and its full
-epochs instead. The simulated sets are rendered into ``--cache`` once (the whole EuRoC and
-UZH-FPV sets take long: render them before a timed run).
+Budget (``--budget``, default 20 min, the whole script): the ``small`` preset
+(:data:`uavcal_jax.calib.protocols.PRESETS`: 160x96 frames in 32x32 patches at 10 Hz, d 64,
+pre-norm, AdamW 1e-3) on non-overlapping 10 s windows, and 3 trials per experiment
+(:data:`BUDGET_TRIALS`: 3 x 2 protocols x 2 models x 3 experiments = 36 fits). Every fit first
+runs two epochs, then all are raised together to a common epoch count that fills the time
+left (see ``experiments/_calib_common.py``); the best checkpoint of each (by training loss)
+is evaluated once at the end. On 2 shared CPU cores a video fit's epoch over the simulated
+EuRoC set takes tens of seconds: 20 minutes buy a few epochs, and the table says how many.
+``--paper`` selects the ``paper`` preset (Table 2: 320x180, 20 Hz, d 256, 1 s stride, lr
+1e-5), every trial and the full epochs with early stopping instead. The simulated sets are
+rendered into ``--cache`` once (the whole EuRoC and UZH-FPV sets take long: render them before
+a timed run).
 
 Usage::
 
     python experiments/calib_protocols.py                       # budget mode, 20 min
-    python experiments/calib_protocols.py --paper               # Table 2, full epochs
-    python experiments/calib_protocols.py --budget 3 --max-duration 20 \\
+    python experiments/calib_protocols.py --budget 90 --trials 5
+    python experiments/calib_protocols.py --paper               # Table 2, every trial
+    python experiments/calib_protocols.py --budget 3 --max-duration 30 --trials 2 \\
         --sequences MH_01_easy,V1_01_easy,indoor_45_2,indoor_forward_3     # a smoke run
 
 Writes ``OUT/table.md``, ``OUT/results.json``, ``OUT/fig2_<experiment>_<protocol>_trial_NN.png``
-and the run folders ``OUT/runs/...`` (each readable by ``uavcal calib eval``; with
-``--frame-step`` above 1 its windows are this script's decimated ones); the last stdout line
-is one JSON object.
+(the first of the K offsets) and the run folders ``OUT/runs/...`` (each readable by ``uavcal
+calib eval``); the last stdout line is one JSON object.
 """
 
 from __future__ import annotations
@@ -52,6 +66,7 @@ import argparse
 import json
 import shutil
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -62,36 +77,32 @@ from _calib_common import (  # the script's folder is first on sys.path
     Budget,
     Job,
     add_common_arguments,
-    best_row,
     budget_record,
+    count,
     describe,
+    evaluate_best,
     fmt_mean_std,
-    load_parts,
     log,
-    mode_settings,
+    mode_line,
     pick_sequences,
     render,
+    resolve,
     train_jobs,
     window_subset,
 )
 
-from uavcal_jax.argtypes import print_json
+from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.calib.baselines import (
     LeastSquaresConfig,
     ground_truth_bias_windows,
     least_squares_windows,
 )
 from uavcal_jax.calib.config import PROTOCOLS
-from uavcal_jax.calib.loop import evaluate, mean_offset_baseline, restore_run
+from uavcal_jax.calib.data import load_windows
+from uavcal_jax.calib.loop import evaluate, mean_offset_baseline, validation_draws
 from uavcal_jax.calib.metrics import calibration_metrics
 from uavcal_jax.calib.predict import channel_names, expand_to_six, predict_sequence
-from uavcal_jax.calib.protocols import (
-    TRIAL_FORMAT,
-    mean_std,
-    resolve_configs,
-    trial_sides,
-    validation_trials,
-)
+from uavcal_jax.calib.protocols import TRIAL_FORMAT, mean_std, trial_sides, validation_trials
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.errors import DataError
 from uavcal_jax.xla_cache import enable_compilation_cache
@@ -115,31 +126,39 @@ EXPERIMENTS = {
     "mh01_kfold": Experiment("euroc", "kfold", ("MH_01_easy",),
                              "MH_01_easy (sim), k-fold over windows"),
 }
-#: Trained variants: their extra ``--set`` strings.
+#: Trained variants: their extra settings.
 VARIANTS = {"transformer": (), "imu_only": ("model.use_video=false",)}
 METHODS = {
     "transformer": "transformer (video + IMU)",
     "imu_only": "transformer, IMU only",
     "mean_offset": "mean-offset baseline",
+    "window_mean": "window-mean baseline",
     "least_squares": "least squares vs ground-truth states",
     "least_squares_oracle": "least squares minus true IMU bias (oracle)",
 }
 #: Least squares on the injected streams: the paper protocol's gyro offsets reach ~1 rad/s,
 #: past the real bias sizes for which 3 Gauss-Newton iterations converge; 0.1 s keyframes
 #: are the fallback when a 0.25 s interval rotates past the preintegration's range.
-LS_CONFIGS = (LeastSquaresConfig(iterations=6), LeastSquaresConfig(interval=0.1, iterations=6))
-#: Budget mode's window stride and frame step: 2 s windows every 2 s (no overlap), 10 Hz
-#: frames (20 per window). The whole simulated EuRoC set then holds ~670 windows; smoke-run
-#: figures on 2 cores: a step takes ~0.07 s (video) / ~0.02 s (IMU only), a fit's call ~1 s
-#: more (validation, checkpoints), so an epoch of all 108 fits is ~3-4 min.
-BUDGET_EXTRA = ("window.stride=2",)
-BUDGET_FRAME_STEP = 2
-#: Seconds set aside per Figure 2 plot (restore two models, predict, draw).
+#: One window per solve (``chunk=1``): every trial's windows then share one compiled solve,
+#: where a chunk of ``min(32, windows)`` compiles anew for each held-out window count.
+LS_CONFIGS = (LeastSquaresConfig(iterations=6, chunk=1),
+              LeastSquaresConfig(interval=0.1, iterations=6, chunk=1))
+#: Trials per experiment in budget mode (spread over the set); --paper runs every one.
+BUDGET_TRIALS = 3
+#: Seconds set aside per Figure 2 plot (predict with two models, draw).
 PLOT_RESERVE_S = 15.0
 
 
 def _plain(tree):
     return jax.tree.map(lambda x: np.asarray(x).tolist(), tree)
+
+
+def spread(n: int, k: int | None) -> list[int]:
+    """``k`` of the indices ``0..n-1`` spread evenly, first and last included (``None``:
+    all)."""
+    if k is None or k >= n:
+        return list(range(n))
+    return sorted({int(i) for i in np.linspace(0, n - 1, k).round()})
 
 
 def method_record(per_seed: list[dict], channels: tuple[str, ...]) -> dict:
@@ -159,32 +178,33 @@ def method_record(per_seed: list[dict], channels: tuple[str, ...]) -> dict:
     return out
 
 
-def least_squares_trial(val, offset: np.ndarray, sensor: str, ground_truth) -> dict:
-    """Least squares on every validation window with ``offset`` injected: per-window estimates
-    and metrics, raw and minus the true bias (``ground_truth(source)`` reads a sequence's)."""
-    offset6 = expand_to_six(offset, sensor)
-    pick = (slice(None) if offset.size == 6 else
+def least_squares_trial(val, offsets: np.ndarray, sensor: str, ground_truth) -> dict:
+    """Least squares on every validation window once per offset of ``offsets (K, C)``
+    (injected into every window): metrics pooled over the K passes, raw and minus the true
+    bias, and the per-window estimates of the first offset (Figure 2); ``ground_truth(source)``
+    reads a sequence's."""
+    pick = (slice(None) if offsets.shape[1] == 6 else
             slice(0, 3) if sensor == "gyro" else slice(3, 6))
+    subs = [(window_subset(p.windows, p.indices), ground_truth(p.source)) for p in val]
+    bias = np.concatenate([ground_truth_bias_windows(sub, gt) for sub, gt in subs])[:, pick]
     last_err = None
     for cfg in LS_CONFIGS:
         try:
-            est, bias = [], []
-            for p in val:
-                sub, gt = window_subset(p.windows, p.indices), ground_truth(p.source)
-                inj = np.broadcast_to(offset6, (len(sub), 6))
-                est.append(np.asarray(least_squares_windows(sub, gt, inj, cfg), np.float64))
-                bias.append(ground_truth_bias_windows(sub, gt))
+            raw = np.stack([np.concatenate([
+                np.asarray(least_squares_windows(
+                    sub, gt, np.broadcast_to(expand_to_six(o, sensor), (len(sub), 6)), cfg),
+                    np.float64) for sub, gt in subs])[:, pick] for o in offsets])
             break
         except DataError as err:
             last_err = err
     else:
         return {"error": str(last_err)}
-    raw, oracle = np.concatenate(est)[:, pick], (np.concatenate(est) - np.concatenate(bias))[
-        :, pick]
-    target = np.broadcast_to(offset, raw.shape)
-    return {"interval_s": cfg.interval, "per_window": raw, "oracle_per_window": oracle,
-            "metrics": _plain(calibration_metrics(raw, target)),
-            "oracle_metrics": _plain(calibration_metrics(oracle, target))}
+    oracle = raw - bias  # (K, n, C)
+    target = np.broadcast_to(offsets[:, None], raw.shape).reshape(-1, raw.shape[-1])
+    return {"interval_s": cfg.interval, "per_window": raw[0], "oracle_per_window": oracle[0],
+            "metrics": _plain(calibration_metrics(raw.reshape(target.shape), target)),
+            "oracle_metrics": _plain(calibration_metrics(oracle.reshape(target.shape),
+                                                         target))}
 
 
 def plot_figure2(path: Path, start_s: np.ndarray, true: np.ndarray, channels, lines: dict,
@@ -225,24 +245,31 @@ def _parse_trials(text: str):
     return "all" if text == "all" else {int(v) for v in text.split(",") if v.strip()}
 
 
+def _trial_count(text: str):
+    return "all" if text == "all" else positive_int(text)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_common_arguments(ap, ROOT / "experiments" / "out" / "calib_protocols",
-                         budget_frame_step=BUDGET_FRAME_STEP)
+    add_common_arguments(ap, ROOT / "experiments" / "out" / "calib_protocols")
     ap.add_argument("--experiments", default=",".join(EXPERIMENTS),
                     help="comma-separated subset of %(default)s")
     ap.add_argument("--protocols", default="paper,physical",
                     help=f"comma-separated injection protocols of {PROTOCOLS} "
                          "[default: %(default)s]")
-    ap.add_argument("--folds", type=int, default=None,
+    ap.add_argument("--trials", type=_trial_count, default=None, metavar="N|all",
+                    help="trials per experiment, spread over it (LOO: held-out sequences; "
+                         f"k-fold: folds used) [default: {BUDGET_TRIALS}, with --paper all]")
+    ap.add_argument("--folds", type=positive_int, default=None,
                     help="k of mh01_kfold [default: LoopConfig.folds]")
     ap.add_argument("--seed", type=int, default=0, help="train.seed of every trial")
     ap.add_argument("--trial-seeds", action="store_true",
-                    help="trial i trains with seed + i (its own validation offset; one compile "
-                         "per trial)")
+                    help="trial i trains with seed + i (its own validation offsets; one "
+                         "compile per trial)")
     ap.add_argument("--plot-trials", type=_parse_trials, default={0}, metavar="I,J|all",
-                    help="trials drawn as Figure 2 [default: 0]")
+                    help="trials drawn as Figure 2, by their index among all the "
+                         "experiment's trials (only those run) [default: 0]")
     args = ap.parse_args()
     experiments = [e for e in args.experiments.split(",") if e]
     protocols = [p for p in args.protocols.split(",") if p]
@@ -250,13 +277,15 @@ def main() -> None:
         p for p in protocols if p not in PROTOCOLS]
     if bad:
         ap.error(f"unknown experiments/protocols: {bad}")
+    if args.trials is None:
+        n_trials = None if args.paper else BUDGET_TRIALS
+    else:
+        n_trials = None if args.trials == "all" else args.trials
 
     budget = Budget(None if args.paper else args.budget)
     enable_compilation_cache()
-    sets = mode_settings(args, BUDGET_EXTRA)
-    if args.folds is not None:
-        sets.append(f"loop.folds={args.folds}")
-    _, _, window = resolve_configs(sets, protocol="paper", validation="loo")
+    extra = [] if args.folds is None else [f"loop.folds={args.folds}"]
+    _, _, window = resolve(args, extra, protocol="paper", validation="loo")
     shutil.rmtree(args.out / "runs", ignore_errors=True)
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -274,11 +303,11 @@ def main() -> None:
         seq_name.update({str(Path(f).absolute()): n for n, f in zip(names, folders, strict=True)})
         for f in folders:
             if f not in loaded:
-                (loaded[f],) = load_parts([f], window, args.frame_step)
+                (loaded[f],) = load_windows([f], window)
         exp_parts[name] = [loaded[f] for f in folders]
     t_data = budget.elapsed()
     log(args.quiet, f"data ready in {t_data:.0f} s: {len(loaded)} sequences, "
-                    f"{sum(len(p.indices) for p in loaded.values())} windows")
+                    f"{count(loaded.values())} windows")
 
     gt_cache: dict[str, object] = {}
 
@@ -287,23 +316,24 @@ def main() -> None:
             gt_cache[source] = read_euroc(source).ground_truth
         return gt_cache[source]
 
-    jobs, trials, job_trial = [], {}, {}
+    jobs, trials, job_trial, trial_counts = [], {}, {}, {}
     for name, parts in exp_parts.items():
         for protocol in protocols:
-            _, loop, _ = resolve_configs(sets, protocol=protocol,
-                                           validation=EXPERIMENTS[name].validation,
-                                           epochs=args.max_epochs)
-            for i, (train, val) in enumerate(validation_trials(parts, loop)):
+            _, loop, _ = resolve(args, extra, protocol=protocol,
+                                 validation=EXPERIMENTS[name].validation, epochs=args.max_epochs)
+            every = validation_trials(parts, loop)
+            trial_counts[name] = len(every)
+            for i in spread(len(every), n_trials):
+                train, val = every[i]
                 key = (name, protocol, i)
                 trials[key] = {"held_out": [seq_name[p.source] for p in val],
-                               "train_windows": int(sum(len(p.indices) for p in train)),
-                               "val_windows": int(sum(len(p.indices) for p in val)),
+                               "train_windows": count(train), "val_windows": count(val),
                                "val": val, "jobs": {}}
-                for variant, extra in VARIANTS.items():
+                for variant, settings in VARIANTS.items():
                     seed = args.seed + i if args.trial_seeds else args.seed
-                    calib, _, _ = resolve_configs([*sets, f"train.seed={seed}", *extra],
-                                               protocol=protocol, validation=loop.validation,
-                                               epochs=args.max_epochs)
+                    calib, _, _ = resolve(args, [*extra, f"train.seed={seed}", *settings],
+                                          protocol=protocol, validation=loop.validation,
+                                          epochs=args.max_epochs)
                     run_dir = args.out / "runs" / name / protocol / variant / TRIAL_FORMAT.format(i)
                     run_dir.mkdir(parents=True, exist_ok=True)
                     (run_dir / "data.json").write_text(json.dumps(trial_sides(train, val)) + "\n")
@@ -314,20 +344,19 @@ def main() -> None:
                     trials[key]["jobs"][variant] = job
 
     def after_first(job, res):
-        """The trial's offset and mean-offset baseline (independent of training), and least
-        squares on the same windows with the same offset."""
+        """The trial's K offsets (independent of training) and least squares on the same
+        windows with the same offsets."""
         t = trials[job_trial[job.name]]
-        _, val = job.data()
-        seeds = job.config.train.seeds
-        ev = evaluate(res.state, val, seeds)
-        offset = np.asarray(ev["offset"], np.float64)
-        if "offset" not in t:
-            t.update(offset=offset, mean_offset=ev["baseline_mean_offset"],
-                     mean_offset_value=np.asarray(mean_offset_baseline(res.state, seeds)),
-                     least_squares=least_squares_trial(val, offset,
-                                                       job.config.injection.single_sensor,
-                                                       ground_truth))
-        elif not np.allclose(offset, t["offset"]):
+        offsets = validation_draws(res.state, job.config.train.seeds, job.loop.val_offsets)
+        if "offsets" not in t:
+            t0 = time.perf_counter()
+            t.update(offsets=offsets, mean_offset_value=np.asarray(
+                mean_offset_baseline(res.state, job.config.train.seeds)),
+                least_squares=least_squares_trial(t["val"], offsets.astype(np.float64),
+                                                  job.config.injection.single_sensor,
+                                                  ground_truth))
+            t["least_squares_s"] = round(time.perf_counter() - t0, 1)
+        elif not np.allclose(offsets, t["offsets"]):
             # both variants draw from (seed, protocol, training statistics): a bug if not
             t.setdefault("offset_mismatch", []).append(job.name)
 
@@ -337,30 +366,33 @@ def main() -> None:
     schedule = train_jobs(jobs, budget, reserve_s=PLOT_RESERVE_S * n_plots + 5.0,
                           quiet=args.quiet, after_first=after_first)
 
-    # ------------------------------------------------------------------ collect per trial
-    channels, example = None, jobs[0] if jobs else None
-    if example is not None:
-        channels = channel_names(example.config.model.imu_channels,
-                                 example.config.injection.single_sensor)
-    plots = []
+    # ------------------------------------------------------------------ evaluate per trial
+    channels = None
+    if jobs:
+        channels = channel_names(jobs[0].config.model.imu_channels,
+                                 jobs[0].config.injection.single_sensor)
+    plots, t_eval = [], time.perf_counter()
     for key, t in trials.items():
-        methods = {}
+        methods, states = {}, {}
         for variant, job in t["jobs"].items():
-            row = best_row(job)
-            methods[variant] = {**method_record(row["val_metrics"], channels),
+            state, seeds, ev = evaluate_best(job, t["offsets"], args.quiet)
+            states[variant] = (state, seeds)
+            methods[variant] = {**method_record(ev["metrics"], channels),
                                 "epochs": job.epochs, "best_epoch": job.summary["best_epoch"],
                                 "stopped_early": job.stopped, "run": str(job.run_dir),
                                 "best": job.summary["best"]}
-        methods["mean_offset"] = method_record([t["mean_offset"]], channels)
+            if variant == "transformer":  # the baselines depend on the data only
+                methods["mean_offset"] = method_record([ev["baseline_mean_offset"]], channels)
+                methods["window_mean"] = method_record([ev["baseline_window_mean"]], channels)
         ls = t["least_squares"]
         if "error" not in ls:
             methods["least_squares"] = {**method_record([ls["metrics"]], channels),
                                         "interval_s": ls["interval_s"]}
             methods["least_squares_oracle"] = method_record([ls["oracle_metrics"]], channels)
-        t["methods"] = methods
-        name, protocol, i = key
-        if args.plot_trials == "all" or i in args.plot_trials:
-            plots.append(str(_figure2(args, key, t, channels)))
+        t["methods"] = {m: methods[m] for m in METHODS if m in methods}
+        if args.plot_trials == "all" or key[2] in args.plot_trials:
+            plots.append(str(_figure2(args, key, t, states, channels)))
+    eval_s = time.perf_counter() - t_eval
 
     # ------------------------------------------------------------------ aggregate
     results: dict = {}
@@ -376,24 +408,28 @@ def main() -> None:
                     "trials": len(recs), "sign_f1": mean_std([r["sign_f1"] for r in recs]),
                     "offset_rmse": mean_std([r["offset_rmse"] for r in recs]),
                     "gyro_rmse": mean_std([r["gyro_rmse"] for r in recs]),
-                    "accel_rmse": mean_std([r["accel_rmse"] for r in recs])}
+                    "accel_rmse": mean_std([r["accel_rmse"] for r in recs]),
+                    **({"epochs": [r["epochs"] for r in recs],
+                        "best_epoch": [r["best_epoch"] for r in recs]}
+                       if "epochs" in recs[0] else {})}
 
     rec_budget = budget_record(budget, args.paper, args.budget)
-    settings = _settings(example, window, args, sets)
+    settings = _settings(jobs, window, args, n_trials, trial_counts)
     table = _table(agg, trials, settings, rec_budget, schedule, skipped, args)
     (args.out / "table.md").write_text(table)
     out_json = {
         "script": "experiments/calib_protocols.py", "argv": sys.argv[1:], **rec_budget,
-        "data_s": round(t_data, 1), "settings": settings, "schedule": schedule,
-        "skipped": skipped, "paper_table4": {k: {"sign_f1_pct": e.paper[0], "offset_rmse":
-                                                 e.paper[1]}
-                                             for k, e in EXPERIMENTS.items() if e.paper},
+        "data_s": round(t_data, 1), "eval_s": round(eval_s, 1), "settings": settings,
+        "schedule": schedule, "skipped": skipped,
+        "paper_table4": {k: {"sign_f1_pct": e.paper[0], "offset_rmse": e.paper[1]}
+                         for k, e in EXPERIMENTS.items() if e.paper},
         "mean_std": agg,
         "trials": [{"experiment": n, "protocol": p, "trial": i, "held_out": t["held_out"],
                     "train_windows": t["train_windows"], "val_windows": t["val_windows"],
-                    "offset": t["offset"].tolist(), "methods": t["methods"],
+                    "offsets": t["offsets"].tolist(), "methods": t["methods"],
                     "offset_mismatch": t.get("offset_mismatch"),
                     "least_squares_error": t["least_squares"].get("error"),
+                    "least_squares_s": t.get("least_squares_s"),
                     "figure2_check": t.get("figure2_check")}
                    for (n, p, i), t in trials.items()],
         "plots": plots, "table": str(args.out / "table.md")}
@@ -428,21 +464,26 @@ def _default(value):
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def _figure2(args, key, t: dict, channels) -> Path:
-    """Restore the trial's best models, predict every held-out window, plot against least
-    squares and the truth; the predictions' offset RMSE is checked against the fit's."""
+def _figure2(args, key, t: dict, states: dict, channels) -> Path:
+    """The trial's best models predict every held-out window with the first of the K offsets
+    injected (:func:`~uavcal_jax.calib.predict.predict_sequence`, the frame-token reuse
+    path), plotted against least squares and the truth; the predictions' offset RMSE is
+    checked against :func:`~uavcal_jax.calib.loop.evaluate`'s on that offset."""
     name, protocol, i = key
+    offset = t["offsets"][0]
     lines, start_s, check = {}, None, {}
     val = t["val"]
-    for variant, job in t["jobs"].items():
-        state, seeds = restore_run(job.run_dir, val)
+    for variant, (state, seeds) in states.items():
         preds = [predict_sequence(state, window_subset(p.windows, p.indices), seeds,
-                                  inject_offset=t["offset"]) for p in val]
+                                  inject_offset=offset) for p in val]
         lines[variant] = np.concatenate([p.per_window for p in preds])
         start_s = np.concatenate([p.start_s for p in preds])
-        err = lines[variant] - t["offset"]
-        check[variant] = {"predict_offset_rmse": float(np.sqrt(np.mean(np.square(err)))),
-                          "fit_offset_rmse": t["methods"][variant]["offset_rmse"]}
+        ev = evaluate(state, val, seeds, offsets=offset[None])
+        check[variant] = {"predict_offset_rmse": float(np.sqrt(np.mean(np.square(
+                              lines[variant] - offset)))),
+                          "evaluate_offset_rmse": float(np.mean([m["offset_rmse"]
+                                                                 for m in ev["metrics"]])),
+                          "seeds": seeds}
     ls = t["least_squares"]
     if "error" not in ls:
         lines["least_squares"] = ls["per_window"]
@@ -450,58 +491,74 @@ def _figure2(args, key, t: dict, channels) -> Path:
     lines["mean_offset"] = np.broadcast_to(t["mean_offset_value"], lines["transformer"].shape)
     t["figure2_check"] = check
     title = (f"{EXPERIMENTS[name].label}, {protocol} protocol, trial {i}: held out "
-             f"{', '.join(t['held_out'])}")
+             f"{', '.join(t['held_out'])}; offset 1 of {len(t['offsets'])}")
     path = args.out / f"fig2_{name}_{protocol}_{TRIAL_FORMAT.format(i)}.png"
-    return plot_figure2(path, start_s, t["offset"], channels, lines, title)
+    return plot_figure2(path, start_s, offset, channels, lines, title)
 
 
-def _settings(job, window, args, sets) -> dict:
-    if job is None:
-        return {"sets": sets}
-    train, _ = job.data()
+def _settings(jobs, window, args, n_trials, trial_counts) -> dict:
+    if not jobs:
+        return {"sets": args.set}
+    train, _ = jobs[0].data()
     T = train[0].windows.frames_per_window
-    return {"sets": sets, "frame_step": args.frame_step, "frames_per_window": T,
-            "max_duration_s": args.max_duration, "sequences": args.sequences,
-            "describe": describe(job.config, window, T, args.frame_step),
+    return {"preset": "paper" if args.paper else "small", "sets": args.set,
+            "frames_per_window": T, "max_duration_s": args.max_duration,
+            "sequences": args.sequences, "trials": n_trials, "trials_of": trial_counts,
+            "val_offsets": jobs[0].loop.val_offsets,
+            "describe": describe(jobs[0].config, window, T),
             "seed": args.seed, "trial_seeds": args.trial_seeds,
-            "max_epochs": job.config.train.epochs}
+            "max_epochs": jobs[0].config.train.epochs}
+
+
+def _epochs(stat: dict) -> str:
+    lo, hi = min(stat["epochs"]), max(stat["epochs"])
+    blo, bhi = min(stat["best_epoch"]), max(stat["best_epoch"])
+    return (f"{lo}" if lo == hi else f"{lo}-{hi}") + (
+        f" ({blo})" if blo == bhi else f" ({blo}-{bhi})")
 
 
 def _table(agg, trials, settings, rec_budget, schedule, skipped, args) -> str:
-    mode = (f"paper mode (Table 2 configuration, at most {settings.get('max_epochs')} epochs, "
-            "early stopping)" if args.paper else
-            f"budget mode: {rec_budget['budget_min']:g} min for the whole script (took "
-            f"{rec_budget['wall_s'] / 60:.1f} min); every fit "
-            f"{schedule['target_epochs']} epochs at most (two first, then a common count "
-            f"that fills the time left), best epoch by training loss")
-    seqs = {}
-    for (name, _, _), t in trials.items():
-        seqs.setdefault(name, set()).update(t["held_out"])
+    seqs: dict = {}
+    for (name, _, i), t in trials.items():
+        seqs.setdefault(name, {})[i] = ", ".join(t["held_out"])
+    k_offsets = settings.get("val_offsets")
+
+    def trial_line(name, held):
+        kind = "fold" if EXPERIMENTS[name].validation == "kfold" else "held out"
+        return (f"{name}: {len(held)} of {settings['trials_of'][name]} trials ("
+                + "; ".join(f"{TRIAL_FORMAT.format(i)} {kind} "
+                            f"{'' if kind == 'held out' else f'{i} of '}{s}"
+                            for i, s in sorted(held.items())) + ")")
+
     lines = ["# Calibrator validation protocols (Table 4 analogue)", "",
-             f"- {mode}.",
+             f"- {mode_line(rec_budget, schedule, settings.get('max_epochs'), 'every fit')}.",
              f"- Model and windows: {settings.get('describe', '-')}.",
              "- Data: simulated sequences (`uavcal_jax.calib.sim_sets`, 376x240 renders of the "
              "trajectories in ../shared/data/trajectories), "
              + ("whole trajectories" if args.max_duration is None else
-                f"each capped at {args.max_duration:g} s") + "; "
-             + "; ".join(f"{n}: {len(s)} ({', '.join(sorted(s))})" for n, s in seqs.items())
-             + ".",
-             "- One injected offset per validation set, drawn by the protocol from "
+                f"each capped at {args.max_duration:g} s") + ".",
+             "- Trials: " + "; ".join(trial_line(n, h) for n, h in seqs.items()) + ".",
+             f"- Every method on the same validation windows, each window evaluated once per "
+             f"offset with the same {k_offsets} offsets, each shared by every window of the trial, "
+             "drawn by the protocol from "
              + (f"`train.seed = {args.seed} + trial`" if args.trial_seeds else
                 f"`train.seed = {args.seed}` (every trial; the paper protocol's also from the "
                 "trial's training statistics)")
-             + "; mean ± std over trials. Offset RMSE pools "
-             "gyro (rad/s) and accel (m/s^2), as the paper; the per-sensor RMSEs beside.",
-             "- Least squares estimates the stream's whole constant error (the injected offset "
-             "plus the simulated IMU's turn-on bias); the oracle row subtracts the true bias.",
+             + "; metrics pooled over the offsets, then mean ± std over trials. Offset RMSE "
+             "pools gyro (rad/s) and accel (m/s^2), as the paper; the per-sensor RMSEs beside. "
+             "Epochs: trained (best), over the trials.",
+             "- Window mean: each window's mean IMU sample minus the training set's (no "
+             "learning). Least squares estimates the stream's whole constant error (the "
+             "injected offset plus the simulated IMU's turn-on bias); the oracle row subtracts "
+             "the true bias.",
              "- Paper values: Table 4 of Avola et al. 2023 (real EuRoC / UZH-FPV, their "
-             "protocol); ours are on simulated data.", ""]
+             "protocol, one offset per trial); ours are on simulated data.", ""]
     if skipped:
         lines += [f"- Skipped: {k}: {v}" for k, v in skipped.items()] + [""]
-    lines += ["| experiment | protocol | method | trials | sign F1 (%) | offset RMSE | "
+    lines += ["| experiment | protocol | method | trials | epochs | sign F1 (%) | offset RMSE | "
               "gyro RMSE (rad/s) | accel RMSE (m/s^2) | paper sign F1 (%) | "
               "paper offset RMSE |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, per_protocol in agg.items():
         for protocol, per_method in per_protocol.items():
             for method, s in per_method.items():
@@ -509,7 +566,8 @@ def _table(agg, trials, settings, rec_budget, schedule, skipped, args) -> str:
                                                   and protocol == "paper") else None
                 lines.append(
                     f"| {EXPERIMENTS[name].label} | {protocol} | {METHODS[method]} | "
-                    f"{s['trials']} | {fmt_mean_std(s['sign_f1'], 100, 2)} | "
+                    f"{s['trials']} | {_epochs(s) if 'epochs' in s else '-'} | "
+                    f"{fmt_mean_std(s['sign_f1'], 100, 2)} | "
                     f"{fmt_mean_std(s['offset_rmse'])} | {fmt_mean_std(s['gyro_rmse'])} | "
                     f"{fmt_mean_std(s['accel_rmse'])} | "
                     f"{'-' if ref is None else f'{ref[0]:.2f}'} | "
