@@ -11,6 +11,7 @@ from uavcal_jax.calib.inject import (
     ImuStats,
     imu_statistics,
     inject,
+    offset_moments,
     training_offsets,
     validation_offsets,
 )
@@ -51,6 +52,16 @@ def test_physical_protocol_uses_the_configured_ranges():
     # per-axis U(-r, r): RMS norm r, the EuRoC bias sizes
     np.testing.assert_allclose(np.sqrt(np.mean(np.sum(o[:, :3] ** 2, axis=1))), 0.08, rtol=0.02)
     np.testing.assert_allclose(np.sqrt(np.mean(np.sum(o[:, 3:] ** 2, axis=1))), 0.16, rtol=0.02)
+
+
+@pytest.mark.parametrize("protocol", ["paper", "symmetric", "physical"])
+def test_offset_moments_are_those_of_the_draws(protocol):
+    """The standardised model predicts in these units: they must be the draws' moments."""
+    cfg = InjectionConfig(protocol=protocol, noise_multiplier=3.0)
+    o = _draw(cfg)
+    mean, std = (np.asarray(x) for x in offset_moments(cfg, STATS))
+    np.testing.assert_allclose(o.std(axis=0), std, rtol=0.03)
+    np.testing.assert_allclose(o.mean(axis=0), mean, atol=4 * std.max() / np.sqrt(N))
 
 
 def test_validation_offset_is_constant_over_the_set():

@@ -101,10 +101,11 @@ def test_best_checkpoint_follows_the_monitored_loss(windows, tmp_path):
     from uavcal_jax.calib.loop import evaluate
 
     # the best checkpoint re-evaluated gives the validation loss recorded for its epoch
-    again = evaluate(best, windows[1], 1)
+    again = evaluate(best, windows[1], 1, draws=LoopConfig().val_offsets)
     assert again["loss"] == pytest.approx(rows[res.summary["best_epoch"] - 1]["val_loss"],
                                           rel=1e-5)
     assert "offset_rmse" in again["baseline_mean_offset"]
+    assert len(again["offsets"]) == LoopConfig().val_offsets
 
 
 def _one_line_error(excinfo, *needles):

@@ -31,6 +31,24 @@ def test_loss_is_the_sum_of_three_mses(pair):
     np.testing.assert_allclose(float(loss), o + s + m, rtol=1e-5)
 
 
+def test_standardized_units_divide_each_channel_by_its_scale(pair):
+    pred, target = pair
+    scale = np.asarray([0.1, 0.2, 0.3, 1.0, 2.0, 4.0], np.float32)
+    cfg = LossConfig(units="standardized")
+    _, terms = calibration_loss(jnp.asarray(pred), jnp.asarray(target), cfg,
+                                scale=jnp.asarray(scale))
+    np.testing.assert_allclose(float(terms["offset"]), np.mean(((pred - target) / scale) ** 2),
+                               rtol=1e-5)
+    np.testing.assert_allclose(float(terms["magnitude"]),
+                               np.mean(((np.abs(pred) - np.abs(target)) / scale) ** 2),
+                               rtol=1e-5)
+    # the sign term is unit-free; SI units ignore the scale
+    assert float(terms["sign"]) == float(calibration_loss(jnp.asarray(pred),
+                                                          jnp.asarray(target))[1]["sign"])
+    si = calibration_loss(jnp.asarray(pred), jnp.asarray(target), scale=jnp.asarray(scale))
+    np.testing.assert_allclose(float(si[1]["offset"]), np.mean((pred - target) ** 2), rtol=1e-5)
+
+
 def test_window_weights_leave_padding_out(pair):
     pred, target = pair
     w = np.ones(37, np.float32)

@@ -10,7 +10,7 @@ import pytest
 
 from uavcal_jax.calib import inference
 from uavcal_jax.calib.config import CalibConfig, with_overrides
-from uavcal_jax.calib.model import GRAY_WEIGHTS, Calibrator, patchify
+from uavcal_jax.calib.model import GRAY_WEIGHTS, NORMALIZATION, Calibrator, patchify
 from uavcal_jax.calib.train import create_train_state
 
 # The tiny configuration of tests/test_calib_train.py: its initialiser compiles once for both.
@@ -42,7 +42,12 @@ def gray(sequence, xla_cache):
     model = Calibrator(TINY)
     state = create_train_state(CONFIG, jax.random.key(0),
                                {"frames": frames[index[:1]], "imu": imu[:1], "mask": mask[:1]})
-    return model, state.variables(), jax.jit(model.apply)
+    # the standardised head starts at zero (every window gets the mean offset): give it
+    # weights, so that outputs depend on the inputs as a trained model's do
+    variables = state.variables()
+    head = variables["params"]["noise_predictor"]["head"]
+    head["kernel"] = 0.3 * jax.random.normal(jax.random.key(5), head["kernel"].shape)
+    return model, variables, jax.jit(model.apply)
 
 
 def _gather(frames, index):
@@ -75,6 +80,35 @@ def test_reusing_frame_tokens_equals_the_full_model(gray, sequence):
     assert np.abs(np.asarray(full[2] - full[3])).max() > 1e-4
 
 
+def test_standardization_is_an_affine_wrap_of_the_raw_network(gray, sequence):
+    """With ``standardize`` the network reads ``(imu - imu_mean) / imu_std`` and its head's
+    output ``y`` becomes ``offset_mean + offset_std * y``: the raw model with the same
+    weights, fed standardised IMU, must give ``y``."""
+    model, variables, apply = gray
+    frames, index, mask, imu = sequence
+    norm = {"imu_mean": jnp.asarray([0.1, -0.2, 0.3, 9.8, 0.1, -0.4]),
+            "imu_std": jnp.asarray([0.5, 0.4, 0.3, 1.5, 1.0, 2.0]),
+            "offset_mean": jnp.asarray([0.0, 1.0, 2.0, 3.0, 4.0, 5.0]),
+            "offset_std": jnp.asarray([1.0, 2.0, 0.5, 0.25, 3.0, 1.5])}
+    x = _gather(frames, index)
+    got = apply({**variables, NORMALIZATION: norm}, x, imu, mask)
+    raw = Calibrator(dataclasses.replace(TINY, standardize=False))
+    z = (imu - np.asarray(norm["imu_mean"])) / np.asarray(norm["imu_std"])
+    y = raw.apply({"params": variables["params"]}, x, z, mask)
+    np.testing.assert_allclose(np.asarray(got),
+                               np.asarray(norm["offset_mean"] + norm["offset_std"] * y),
+                               rtol=1e-5, atol=1e-5)
+
+
+def test_an_untrained_standardized_model_predicts_the_mean_offset(sequence):
+    frames, index, mask, imu = sequence
+    state = create_train_state(CONFIG, jax.random.key(3),
+                               {"frames": frames[index[:1]], "imu": imu[:1], "mask": mask[:1]})
+    out = Calibrator(TINY).apply(state.variables(), _gather(frames, index), imu, mask)
+    want = state.variables()[NORMALIZATION]["offset_mean"]
+    np.testing.assert_array_equal(np.asarray(out), np.broadcast_to(want, out.shape))
+
+
 def test_padded_frames_change_nothing(gray, sequence):
     _, variables, apply = gray
     frames, index, mask, imu = sequence
@@ -93,7 +127,8 @@ def test_imu_only_variant_has_no_video_block(gray, sequence):
     shapes = jax.eval_shape(lambda: model.init(jax.random.key(0), None, imu, mask))
     assert set(shapes["params"]) == {"imu_reducer", "noise_predictor"}
     # the same blocks as the video model's: reuse its trained-from-init weights
-    variables = {"params": {k: gvars["params"][k] for k in shapes["params"]}}
+    variables = {"params": {k: gvars["params"][k] for k in shapes["params"]},
+                 NORMALIZATION: gvars[NORMALIZATION]}
     out = jax.jit(lambda v, i, m: model.apply(v, None, i, m))(variables, imu, mask)
     assert out.shape == (4, 6) and bool(jnp.all(jnp.isfinite(out)))
     with pytest.raises(ValueError, match="IMU-only"):
@@ -125,7 +160,8 @@ def test_rgb_path_is_gray_plus_colour_compression(gray, sequence):
                              rngs={"dropout": key})
         return out, upd["batch_stats"]["frame_encoder"]["ccn"]["norm"]
 
-    got, new = both({"params": params, "batch_stats": stats}, rgb, imu, mask, jax.random.key(3))
+    got, new = both({"params": params, "batch_stats": stats, NORMALIZATION: gvars[NORMALIZATION]},
+                    rgb, imu, mask, jax.random.key(3))
     luma = np.tensordot(np.asarray(GRAY_WEIGHTS, np.float32), rgb, axes=([0], [2]))
     want = gapply(gvars, luma, imu, mask)
     np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-5, rtol=1e-5)

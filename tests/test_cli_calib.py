@@ -18,6 +18,7 @@ from uavcal_jax.calib.checkpoint import KINDS
 from uavcal_jax.calib.config import PROTOCOLS, CalibConfig, InjectionConfig, TrainConfig
 from uavcal_jax.calib.data import gather, load_windows
 from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig, restore_run
+from uavcal_jax.calib.protocols import PRESETS
 from uavcal_jax.calib.train import eval_step_seeds
 from uavcal_jax.cli import build_parser, main
 from uavcal_jax.commands.calib import train_configs
@@ -55,8 +56,8 @@ def test_parser_defaults_are_the_dataclass_defaults():
         "train": {"protocol": (InjectionConfig().protocol, PROTOCOLS),
                   "validation": (LoopConfig().validation, VALIDATIONS),
                   "seeds": (TrainConfig().seeds, None), "epochs": (TrainConfig().epochs, None),
-                  "set": ([], None)},
-        "eval": {"data": (None, None)},
+                  "set": ([], None), "preset": ("paper", tuple(PRESETS))},
+        "eval": {"data": (None, None), "offsets": (None, None)},
         "predict": {"checkpoint": (None, None), "kind": ("best", KINDS), "inject": (None, None),
                     "plot": (None, None)},
     }
@@ -78,6 +79,18 @@ def _one_line(capsys, *needles):
     assert len(err) == 1, err
     for n in needles:
         assert str(n) in err[0], err[0]
+
+
+def test_preset_settings_come_first_and_flags_and_set_win():
+    parser = build_parser()
+    args = parser.parse_args(["calib", "train", "--data", "d", "--out", "o", "--preset", "small",
+                              "--epochs", "7", "--set", "model.d_model=32", "window.duration=4"])
+    calib, loop, window = train_configs(args)
+    assert calib.model.d_model == 32 and window.duration == 4 and calib.train.epochs == 7
+    assert "model.d_model=64" in PRESETS["small"]  # the user's setting won over the preset's
+    assert calib.model.norm_first and calib.loss.units == "standardized"
+    assert window.frame_step == 2 and window.size == (160, 96) and calib.model.patch == (32, 32)
+    assert calib.injection == CalibConfig().injection and loop == LoopConfig()
 
 
 @pytest.mark.parametrize("key", ["nope", "window.nope", "loop.nope", "model.nope"])

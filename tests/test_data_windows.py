@@ -119,6 +119,24 @@ def test_frames_shared_not_copied():
     assert b["gyro"].shape == (3, 200, 3) and b["mask"].all()
 
 
+def test_frame_step_keeps_every_kth_slot_and_decodes_only_those():
+    seq, info = make_sequence(30.0, drop=[41])
+    full = make_windows(seq, WindowConfig(size=(32, 24)))
+    info["calls"]["n"] = 0
+    ws = make_windows(seq, WindowConfig(size=(32, 24), frame_step=3))
+    assert ws.frames_per_window == 67 and len(ws) == len(full)  # ceil(200 / 3)
+    # the same frames (by time) in the kept slots, the dropped one still padded
+    t_full = np.where(full.frame_mask, full.frame_t_ns[np.maximum(full.frame_index, 0)], -1)
+    t_step = np.where(ws.frame_mask, ws.frame_t_ns[np.maximum(ws.frame_index, 0)], -1)
+    np.testing.assert_array_equal(t_step, t_full[:, ::3])
+    assert (t_step == -1).sum() == (t_full[:, ::3] == -1).sum() > 0
+    assert info["calls"]["n"] == ws.frames.shape[0] == np.unique(ws.frame_index[ws.frame_mask]).size
+    b, bf = ws.batch([2]), full.batch([2])
+    np.testing.assert_array_equal(b["gyro"], bf["gyro"][:, ::3])
+    with pytest.raises(ValueError, match="frame_step"):
+        WindowConfig(frame_step=0)
+
+
 def test_resize_is_inter_area_once():
     seq, info = make_sequence(10.0)
     ws = make_windows(seq, WindowConfig(size=(32, 24), color="rgb"))

@@ -29,7 +29,7 @@ from uavcal_jax.errors import DataError
 __all__ = ["FORMAT_VERSION", "KINDS", "RESUMABLE_KEYS", "RunCheckpoints", "config_differences"]
 
 #: Version of the checkpoint layout (items, meta keys); bump on an incompatible change.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 #: The two checkpoint series of a run.
 KINDS = ("last", "best")
 #: Configuration keys a resumed run may change: the epoch budget (train longer).

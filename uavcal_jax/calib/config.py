@@ -20,6 +20,7 @@ __all__ = [
     "ACTIVATIONS",
     "FRAME_TOKENS",
     "PROTOCOLS",
+    "LOSS_UNITS",
     "SIGN_TERMS",
     "CalibConfig",
     "InjectionConfig",
@@ -34,6 +35,7 @@ __all__ = [
 ACTIVATIONS = ("relu", "gelu")
 FRAME_TOKENS = ("learned", "first_patch")
 SIGN_TERMS = ("sign", "tanh")
+LOSS_UNITS = ("si", "standardized")
 PROTOCOLS = ("paper", "symmetric", "physical")
 
 
@@ -65,6 +67,14 @@ class ModelConfig:
             pre-norm.
         pixel_scale: multiplies uint8 pixel values before the network (1/255: [0, 1]).
         layer_norm_eps: epsilon of every layer norm (PyTorch's 1e-5).
+        standardize: ``True``: each IMU channel enters the network as ``(x - mu) / sigma``
+            (the training set's clean IMU statistics) and the network predicts in the units
+            of the offset distribution, ``o_hat = m + s * head(...)`` (``m``, ``s``: its
+            mean and standard deviation under the run's injection protocol), with the head
+            zero-initialised so that an untrained model predicts the mean offset; the
+            statistics travel with the checkpoint. ``False``: raw SI values in and out
+            (accelerometer inputs near 9.81 m/s^2, paper-protocol targets of several
+            m/s^2). The paper describes no normalisation; ``calib_ablation.py`` compares.
     """
 
     d_model: int = 256
@@ -82,6 +92,7 @@ class ModelConfig:
     norm_first: bool = False
     pixel_scale: float = 1.0 / 255.0
     layer_norm_eps: float = 1e-5
+    standardize: bool = True
 
     def __post_init__(self) -> None:
         if self.d_model <= 0 or self.heads <= 0 or self.d_model % self.heads:
@@ -116,6 +127,9 @@ class LossConfig:
             everywhere) or ``"tanh"`` (smooth surrogate ``MSE(tanh(o_hat / tau), sign(o))``).
         tau: temperature of the surrogate, in the offsets' units (rad/s, m/s^2).
         w_offset, w_sign, w_magnitude: term weights (the paper sums them: all 1).
+        units: ``"si"``: the offset and magnitude MSEs in rad/s and m/s^2 mixed (as
+            written); ``"standardized"``: each channel's differences in units of the
+            protocol's offset standard deviation (see :mod:`uavcal_jax.calib.loss`).
     """
 
     sign_term: str = "sign"
@@ -123,10 +137,13 @@ class LossConfig:
     w_offset: float = 1.0
     w_sign: float = 1.0
     w_magnitude: float = 1.0
+    units: str = "si"
 
     def __post_init__(self) -> None:
         if self.sign_term not in SIGN_TERMS:
             raise ValueError(f"sign_term must be one of {SIGN_TERMS}, got {self.sign_term!r}")
+        if self.units not in LOSS_UNITS:
+            raise ValueError(f"units must be one of {LOSS_UNITS}, got {self.units!r}")
         if self.tau <= 0:
             raise ValueError(f"tau must be positive, got {self.tau}")
 

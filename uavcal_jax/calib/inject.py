@@ -35,6 +35,7 @@ __all__ = [
     "ImuStats",
     "imu_statistics",
     "inject",
+    "offset_moments",
     "physical_bounds",
     "sample_offset",
     "training_offsets",
@@ -95,16 +96,33 @@ def physical_bounds(config: InjectionConfig, channels: int) -> jax.Array:
     raise ValueError(f"an IMU has 3 or 6 channels, got {channels}")
 
 
+def _half_width(config: InjectionConfig, std: jax.Array) -> jax.Array:
+    """Per-channel half-range of the uniform protocols ``(C,)``."""
+    if config.protocol == "symmetric":
+        return jnp.float32(config.noise_multiplier) * std
+    return physical_bounds(config, std.shape[0])
+
+
 def sample_offset(key: jax.Array, config: InjectionConfig, stats: ImuStats) -> jax.Array:
     """One offset ``(C,)`` drawn by ``config.protocol`` (``C`` from ``stats``)."""
     mean = jnp.asarray(stats.mean, jnp.float32)
     std = jnp.asarray(stats.std, jnp.float32)
-    nm = jnp.float32(config.noise_multiplier)
     if config.protocol == "paper":
+        nm = jnp.float32(config.noise_multiplier)
         return mean + jnp.sqrt(nm) * std * jax.random.normal(key, mean.shape, jnp.float32)
-    half = nm * std if config.protocol == "symmetric" else physical_bounds(config,
-                                                                             mean.shape[0])
-    return jax.random.uniform(key, mean.shape, jnp.float32, -1.0, 1.0) * half
+    return jax.random.uniform(key, mean.shape, jnp.float32, -1.0, 1.0) * _half_width(config,
+                                                                                   std)
+
+
+def offset_moments(config: InjectionConfig, stats: ImuStats) -> tuple[jax.Array, jax.Array]:
+    """Mean and standard deviation ``(C,)`` of the offsets :func:`sample_offset` draws: the
+    units a standardised model predicts in (``paper``: ``mu``, ``sqrt(n_m) sigma``;
+    ``symmetric``: 0, ``n_m sigma / sqrt(3)``; ``physical``: 0, ``r / sqrt(3)``)."""
+    mean = jnp.asarray(stats.mean, jnp.float32)
+    std = jnp.asarray(stats.std, jnp.float32)
+    if config.protocol == "paper":
+        return mean, jnp.sqrt(jnp.float32(config.noise_multiplier)) * std
+    return jnp.zeros_like(mean), _half_width(config, std) / jnp.sqrt(jnp.float32(3.0))
 
 
 def training_offsets(key: jax.Array, config: InjectionConfig, stats: ImuStats,

@@ -13,7 +13,11 @@ everywhere** (and none at 0): it adds to the reported loss but never moves the p
 ``LossConfig.sign_term="tanh"`` replaces ``sign(o_hat)`` by the smooth surrogate
 ``tanh(o_hat / tau)``, which does push each prediction toward the true sign (most strongly
 within ``tau`` of zero); the ablation compares the two. Offsets mix units (rad/s and m/s^2)
-in one mean, as the paper does.
+in one mean, as the paper does (``LossConfig.units="si"``); with ``units="standardized"`` the
+offset and magnitude differences of channel ``c`` are divided by ``scale_c``, the standard
+deviation of the offsets the protocol draws, so every channel weighs alike whatever its unit
+and spread (under the raw mean a channel with a 10x smaller spread contributes 100x less
+gradient, and the network learns it last).
 """
 
 from __future__ import annotations
@@ -26,8 +30,9 @@ from uavcal_jax.calib.config import LossConfig
 __all__ = ["calibration_loss", "loss_terms"]
 
 
-def _mse(a: jax.Array, b: jax.Array, weight: jax.Array | None) -> jax.Array:
-    sq = jnp.square(a - b)
+def _mse(a: jax.Array, b: jax.Array, weight: jax.Array | None,
+         scale: jax.Array | None = None) -> jax.Array:
+    sq = jnp.square(a - b if scale is None else (a - b) / scale)
     if weight is None:
         return jnp.mean(sq)
     w = jnp.broadcast_to(weight[:, None].astype(sq.dtype), sq.shape)
@@ -35,36 +40,41 @@ def _mse(a: jax.Array, b: jax.Array, weight: jax.Array | None) -> jax.Array:
 
 
 def loss_terms(pred: jax.Array, target: jax.Array, config: LossConfig | None = None,
-               weight: jax.Array | None = None) -> dict[str, jax.Array]:
+               weight: jax.Array | None = None,
+               scale: jax.Array | None = None) -> dict[str, jax.Array]:
     """The three terms of eq. 15-17, scalars, for ``pred``/``target`` ``(B, C)``.
 
-    ``weight (B,)`` (optional, 0/1) leaves padded windows out of every mean. ``"sign"`` is
+    ``weight (B,)`` (optional, 0/1) leaves padded windows out of every mean. ``scale (C,)``
+    divides the offset and magnitude differences (used when ``config.units`` is
+    ``"standardized"``; ignored for ``"si"``). ``"sign"`` is
     the term the configured ``sign_term`` optimises (the surrogate when ``"tanh"``);
     ``"sign_exact"`` is always eq. 16 as written, for reporting.
     """
     config = LossConfig() if config is None else config
     pred = pred.astype(jnp.float32)
     target = target.astype(jnp.float32)
+    scale = None if config.units == "si" or scale is None else scale.astype(jnp.float32)
     exact = _mse(jnp.sign(pred), jnp.sign(target), weight)
     if config.sign_term == "tanh":
         sign = _mse(jnp.tanh(pred / config.tau), jnp.sign(target), weight)
     else:
         sign = exact
     return {
-        "offset": _mse(pred, target, weight),
+        "offset": _mse(pred, target, weight, scale),
         "sign": sign,
-        "magnitude": _mse(jnp.abs(pred), jnp.abs(target), weight),
+        "magnitude": _mse(jnp.abs(pred), jnp.abs(target), weight, scale),
         "sign_exact": exact,
     }
 
 
 def calibration_loss(pred: jax.Array, target: jax.Array, config: LossConfig | None = None,
-                     weight: jax.Array | None = None) -> tuple[jax.Array, dict[str, jax.Array]]:
+                     weight: jax.Array | None = None, scale: jax.Array | None = None
+                     ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Eq. 18: ``(loss, terms)``, ``loss = w_o L_offset + w_s L_sign + w_m L_magnitude``
     (weights 1 in the paper; ``config`` default :class:`LossConfig`); ``terms`` as
-    :func:`loss_terms`."""
+    :func:`loss_terms` (``scale``: see there)."""
     config = LossConfig() if config is None else config
-    terms = loss_terms(pred, target, config, weight)
+    terms = loss_terms(pred, target, config, weight, scale)
     total = (config.w_offset * terms["offset"] + config.w_sign * terms["sign"]
              + config.w_magnitude * terms["magnitude"])
     return total, terms

@@ -23,6 +23,12 @@ rad/s, accel xyz in m/s^2, the IMU/body frame).
 
 The IMU-only variant (``use_video=False``) drops the VRB: the NPB reads ``T_i`` alone.
 
+With ``ModelConfig.standardize`` the IMU enters as ``(imu - imu_mean) / imu_std`` and the
+head's output ``y`` becomes ``offset_mean + offset_std * y``; the four ``(C,)`` constants are
+the ``"normalization"`` variable collection (:data:`NORMALIZATION`), which the caller supplies
+from the training statistics (:meth:`uavcal_jax.calib.train.CalibState.variables`), and the
+head starts at zero: an untrained model predicts the mean offset.
+
 The frame encoder depends on one frame only, so :meth:`Calibrator.encode_frames` and
 :meth:`Calibrator.predict_from_frame_tokens` split the model at the frame tokens: over a
 sequence each frame is encoded once and its token reused by every window holding it
@@ -45,7 +51,8 @@ from uavcal_jax.calib.dropout import Dropout
 from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encoder
 from uavcal_jax.data.color import LUMA_WEIGHTS
 
-__all__ = ["GRAY_WEIGHTS", "Calibrator", "build_model", "patchify"]
+__all__ = ["GRAY_WEIGHTS", "NORMALIZATION", "NORMALIZATION_NAMES", "Calibrator", "build_model",
+           "patchify"]
 
 F32 = jnp.float32
 
@@ -54,6 +61,10 @@ F32 = jnp.float32
 GRAY_WEIGHTS = LUMA_WEIGHTS
 
 _embedding_init = nn.initializers.normal(stddev=0.02)
+
+#: The variable collection of the standardisation constants, and their names (each ``(C,)``).
+NORMALIZATION = "normalization"
+NORMALIZATION_NAMES = ("imu_mean", "imu_std", "offset_mean", "offset_std")
 
 
 def patchify(frames: jax.Array, patch: tuple[int, int]) -> jax.Array:
@@ -174,7 +185,9 @@ class NoisePredictor(nn.Module):
         query = self.param("query", _embedding_init, (1, 1, c.d_model), F32)
         query = jnp.broadcast_to(query, (tokens.shape[0], 1, c.d_model))
         out = Decoder(c, name="decoder")(query, memory, mask, deterministic=deterministic)
-        return nn.Dense(c.imu_channels, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
+        # standardised: start at the mean offset, so training only has to improve on it
+        head_init = nn.initializers.zeros if c.standardize else LINEAR_INIT
+        return nn.Dense(c.imu_channels, dtype=F32, param_dtype=F32, kernel_init=head_init,
                         name="head")(out[:, 0])
 
 
@@ -196,6 +209,11 @@ class Calibrator(nn.Module):
             self.video_temporal = VideoTemporal(c)
         self.imu_reducer = ImuReducer(c)
         self.noise_predictor = NoisePredictor(c)
+        if c.standardize:
+            fills = (jnp.zeros, jnp.ones, jnp.zeros, jnp.ones)
+            self.normalization = {name: self.variable(NORMALIZATION, name, fill,
+                                                      (c.imu_channels,), F32)
+                                  for name, fill in zip(NORMALIZATION_NAMES, fills, strict=True)}
 
     def encode_frames(self, frames, valid=None, *, deterministic: bool = True) -> jax.Array:
         """Frame tokens ``(..., d)`` of frames ``(..., h, w)`` (gray) or ``(..., 3, h, w)``
@@ -216,13 +234,20 @@ class Calibrator(nn.Module):
         """Offsets ``(B, C)`` from frame tokens ``(B, n, d)`` (``None`` for the IMU-only
         model), IMU ``(B, n, C)`` and ``mask (B, n)``."""
         mask = jnp.asarray(mask, bool)
-        tokens = self.imu_reducer(jnp.asarray(imu), mask, deterministic=deterministic)
+        imu = jnp.asarray(imu, F32)
+        if self.config.standardize:
+            norm = {k: v.value for k, v in self.normalization.items()}
+            imu = (imu - norm["imu_mean"]) / norm["imu_std"]
+        tokens = self.imu_reducer(imu, mask, deterministic=deterministic)
         if self.config.use_video:
             if frame_tokens is None:
                 raise ValueError("the video model needs frame tokens")
             tokens = tokens + self.video_temporal(frame_tokens, mask,
                                                   deterministic=deterministic)
-        return self.noise_predictor(tokens, mask, deterministic=deterministic)
+        out = self.noise_predictor(tokens, mask, deterministic=deterministic)
+        if self.config.standardize:
+            out = norm["offset_mean"] + norm["offset_std"] * out
+        return out
 
     def __call__(self, frames, imu, mask, *, deterministic: bool = True) -> jax.Array:
         frame_tokens = None

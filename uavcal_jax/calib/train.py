@@ -35,10 +35,16 @@ import optax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from uavcal_jax.calib.config import CalibConfig, TrainConfig
-from uavcal_jax.calib.inject import ImuStats, imu_statistics, inject, training_offsets
+from uavcal_jax.calib.inject import (
+    ImuStats,
+    imu_statistics,
+    inject,
+    offset_moments,
+    training_offsets,
+)
 from uavcal_jax.calib.loss import calibration_loss
 from uavcal_jax.calib.metrics import metric_sums
-from uavcal_jax.calib.model import Calibrator
+from uavcal_jax.calib.model import NORMALIZATION, Calibrator
 
 __all__ = [
     "CalibState",
@@ -51,9 +57,27 @@ __all__ = [
     "eval_step",
     "eval_step_seeds",
     "make_optimizer",
+    "normalization",
     "train_step",
     "train_step_seeds",
 ]
+
+
+#: Floor of the standardisation's divisors (a channel constant over the training set).
+_MIN_STD = 1e-6
+
+
+def normalization(config: CalibConfig, stats: ImuStats) -> dict:
+    """The model's ``"normalization"`` collection (see :mod:`uavcal_jax.calib.model`): the
+    training IMU's per-channel mean and standard deviation and those of the offsets the
+    injection protocol draws (:func:`uavcal_jax.calib.inject.offset_moments`), ``(C,)``
+    float32 each; empty when ``config.model.standardize`` is off."""
+    if not config.model.standardize:
+        return {}
+    offset_mean, offset_std = offset_moments(config.injection, stats)
+    return {"imu_mean": jnp.asarray(stats.mean, jnp.float32),
+            "imu_std": jnp.maximum(jnp.asarray(stats.std, jnp.float32), _MIN_STD),
+            "offset_mean": offset_mean, "offset_std": jnp.maximum(offset_std, _MIN_STD)}
 
 
 class CalibState(flax.struct.PyTreeNode):
@@ -73,9 +97,12 @@ class CalibState(flax.struct.PyTreeNode):
         return Calibrator(self.config.model)
 
     def variables(self) -> dict:
-        """The Flax variables for ``Calibrator.apply``."""
-        return {"params": self.params, **({"batch_stats": self.batch_stats}
-                                          if self.batch_stats else {})}
+        """The Flax variables for ``Calibrator.apply`` (the standardisation constants come
+        from ``imu_stats`` and the injection protocol: :func:`normalization`)."""
+        norm = normalization(self.config, self.imu_stats)
+        return {"params": self.params,
+                **({"batch_stats": self.batch_stats} if self.batch_stats else {}),
+                **({NORMALIZATION: norm} if norm else {})}
 
 
 def _is_key_bias(path, _leaf) -> bool:
@@ -169,6 +196,11 @@ def _apply(state: CalibState, params, frames, imu, mask, *, train: bool, key=Non
     return model.apply(variables, frames, imu, mask, deterministic=False, rngs=rngs), {}
 
 
+def _offset_scale(state: CalibState) -> jax.Array:
+    """Per-channel scale of the standardised loss: the protocol's offset standard deviation."""
+    return jnp.maximum(offset_moments(state.config.injection, state.imu_stats)[1], _MIN_STD)
+
+
 def _train_step(state: CalibState, batch: dict, key: jax.Array):
     config = state.config
     frames, clean, mask = _inputs(config, batch)
@@ -179,7 +211,8 @@ def _train_step(state: CalibState, batch: dict, key: jax.Array):
 
     def loss_fn(params):
         pred, stats = _apply(state, params, frames, imu, mask, train=True, key=k_dropout)
-        loss, terms = calibration_loss(pred, offsets, config.loss, weight)
+        loss, terms = calibration_loss(pred, offsets, config.loss, weight,
+                                       _offset_scale(state))
         return loss, (terms, stats, pred)
 
     (loss, (terms, batch_stats, pred)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
@@ -201,7 +234,7 @@ def _eval_step(state: CalibState, batch: dict):
     offsets = jnp.asarray(batch["offset"], jnp.float32)
     pred, _ = _apply(state, state.params, frames, inject(clean, offsets, mask), mask,
                      train=False)
-    loss, terms = calibration_loss(pred, offsets, config.loss, weight)
+    loss, terms = calibration_loss(pred, offsets, config.loss, weight, _offset_scale(state))
     return {"loss": loss, **terms, "sums": metric_sums(pred, offsets, weight), "pred": pred}
 
 

@@ -33,7 +33,13 @@ config.json, data.json (the windows of each side), metrics.jsonl and checkpoints
 loo/kfold write one such folder per trial, RUN/trial_NN, and RUN/result.json with the mean and
 standard deviation of the validation metrics over trials.
 
+presets (--preset): paper = Table 2 of the paper, the defaults (d 256, 320x180 frames in
+64x64 patches, 10 s windows at 20 Hz, AdamW 1e-5: days on a CPU); small = minutes on a CPU
+(160x96 frames in 32x32 patches at 10 Hz, d 64, pre-norm layers, AdamW 1e-3, the loss in each
+channel's offset units). Its settings are listed in uavcal_jax/calib/protocols.py (PRESETS).
+
 examples:
+  uavcal calib train --data sims/ --out runs/cal --validation loo --preset small --epochs 40
   uavcal calib train --data sims/ --out runs/cal --validation loo --epochs 20
   uavcal calib train --data sims/V1_01 --out runs/cal --seeds 4 --set window.duration=4
   uavcal calib train --data sims/ --out runs/cal --validation loo --resume"""
@@ -52,13 +58,15 @@ examples:
   uavcal vio --sequence sims/V1_01 --out traj.txt --offsets offsets.json"""
 
 #: Headline validation metrics averaged over trials.
-HEADLINE = ("val_loss", "val_offset_rmse", "val_sign_f1", "baseline_offset_rmse")
+HEADLINE = ("val_loss", "val_offset_rmse", "val_sign_f1", "baseline_offset_rmse",
+            "window_mean_offset_rmse")
 
 
 def register(subparsers) -> None:
     from uavcal_jax.calib.checkpoint import KINDS
     from uavcal_jax.calib.config import PROTOCOLS, InjectionConfig, TrainConfig
     from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig
+    from uavcal_jax.calib.protocols import PRESETS
 
     raw = argparse.RawDescriptionHelpFormatter
     parser = subparsers.add_parser("calib", help="train and evaluate the IMU self-calibrator",
@@ -70,6 +78,9 @@ def register(subparsers) -> None:
     p.add_argument("--data", required=True, nargs="+", metavar="DIR",
                    help="EuRoC sequence folders or folders of them")
     p.add_argument("--out", required=True, metavar="RUN", help="the run folder to write")
+    p.add_argument("--preset", choices=tuple(PRESETS), default="paper",
+                   help="starting configuration, see below; --set and the other flags win "
+                        "[default: %(default)s]")
     p.add_argument("--protocol", choices=PROTOCOLS, default=InjectionConfig.protocol,
                    help="offset injection (paper: N(mu, n_m sigma^2) of the training IMU; "
                         "symmetric: U(-n_m sigma, n_m sigma); physical: real bias ranges) "
@@ -98,6 +109,9 @@ def register(subparsers) -> None:
     p.add_argument("--data", nargs="+", metavar="DIR", default=None,
                    help="evaluate on every window of these sequences [default: the run's "
                         "validation windows]")
+    p.add_argument("--offsets", type=positive_int, default=None, metavar="K",
+                   help="evaluate once per offset, K offsets drawn by the run's protocol, "
+                        "each shared by every window [default: the run's loop.val_offsets]")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_eval)
 
@@ -133,8 +147,9 @@ def train_configs(args):
     from uavcal_jax.calib.protocols import resolve_configs
 
     try:
-        return resolve_configs(args.set, protocol=args.protocol, validation=args.validation,
-                               seeds=args.seeds, epochs=args.epochs)
+        return resolve_configs(args.set, preset=args.preset, protocol=args.protocol,
+                               validation=args.validation, seeds=args.seeds,
+                               epochs=args.epochs)
     except KeyError as err:
         raise DataError(f"--set: unknown configuration key {err.args[0]!r} (sections: model, "
                         "loss, injection, train, window, loop)") from None
@@ -179,11 +194,19 @@ def run_train(args) -> int:
     else:
         for r in results:
             b = r["best"]
+            nan = float("nan")
             print(f"{r['run']}: {r['epochs']} epochs, best {r['best_epoch']}: loss "
-                  f"{b.get('loss', float('nan')):.4f}, val offset RMSE "
-                  f"{b.get('val_offset_rmse', float('nan')):.4f} (mean-offset baseline "
-                  f"{b.get('baseline_offset_rmse', float('nan')):.4f})")
+                  f"{b.get('loss', nan):.4f}, val offset RMSE {b.get('val_offset_rmse', nan):.4f}"
+                  f" (baselines: mean offset {b.get('baseline_offset_rmse', nan):.4f}, window "
+                  f"mean {b.get('window_mean_offset_rmse', nan):.4f})")
+        _print_mean_std(summary["mean_std"], len(results))
     return 0
+
+
+def _print_mean_std(agg: dict, trials: int) -> None:
+    if trials > 1:
+        print("mean ± std over trials: " + ", ".join(
+            f"{k} {agg[k]['mean']:.4f} ± {agg[k]['std']:.4f}" for k in HEADLINE if k in agg))
 
 
 # ----------------------------------------------------------------------------- eval
@@ -223,27 +246,32 @@ def run_eval(args) -> int:
     cache: dict = {}
     trials = []
     for run_dir in run_dirs(args.run):
-        _, _, window, _ = read_run_config(run_dir)
+        _, loop, window, _ = read_run_config(run_dir)
         parts = (load_windows(args.data, window) if args.data
                  else _val_windows(run_dir, window, cache))
         if not parts:
             raise DataError("no validation windows to evaluate on: give --data", run_dir)
         state, seeds = restore_run(run_dir, parts)
-        res = evaluate(state, parts, seeds, show=not args.json)
+        res = evaluate(state, parts, seeds, draws=args.offsets or loop.val_offsets,
+                       show=not args.json)
         trials.append({"run": str(run_dir), **res})
     rows = [{"val_loss": float(np.mean(t["loss"])),
              "val_offset_rmse": float(np.mean([m["offset_rmse"] for m in t["metrics"]])),
              "val_sign_f1": float(np.mean([m["sign_f1"] for m in t["metrics"]])),
-             "baseline_offset_rmse": t["baseline_mean_offset"]["offset_rmse"]} for t in trials]
+             "baseline_offset_rmse": t["baseline_mean_offset"]["offset_rmse"],
+             "window_mean_offset_rmse": t["baseline_window_mean"]["offset_rmse"]}
+            for t in trials]
     summary = {"run": str(args.run), "data": args.data, "trials": trials,
                "mean_std": _aggregate(rows)}
     if args.json:
         print_json(summary)
     else:
         for t, r in zip(trials, rows, strict=True):
-            print(f"{t['run']}: {t['windows']} windows, offset RMSE {r['val_offset_rmse']:.4f}, "
-                  f"sign F1 {r['val_sign_f1']:.4f}; mean-offset baseline offset RMSE "
-                  f"{r['baseline_offset_rmse']:.4f}")
+            print(f"{t['run']}: {t['windows']} windows x {len(t['offsets'])} offsets, offset "
+                  f"RMSE {r['val_offset_rmse']:.4f}, sign F1 {r['val_sign_f1']:.4f}; baselines "
+                  f"(offset RMSE): mean offset {r['baseline_offset_rmse']:.4f}, window mean "
+                  f"{r['window_mean_offset_rmse']:.4f}")
+        _print_mean_std(summary["mean_std"], len(rows))
     return 0
 
 

@@ -24,6 +24,10 @@ Missing frames (dropped by the camera or by the reader) are **padded**: their sl
 ``frame_index`` is ``-1`` and ``frame_mask`` is ``False``, so the other frames keep their
 place in time; gathers fill such slots with zero pixels, zero IMU values and ``t_ns = -1``.
 Windows with fewer than ``min_valid_fraction * T`` real frames are skipped.
+
+``frame_step = k`` keeps every ``k``-th slot of each window (its frames and their nearest IMU
+samples, at ``rate / k``; ``T = ceil(round(duration * rate) / k)``): a cheaper model input
+over the same span. Frames no window keeps are not decoded.
 """
 
 from __future__ import annotations
@@ -52,6 +56,7 @@ class WindowConfig:
         color: ``"gray"`` (F, H, W) or ``"rgb"`` (F, H, W, 3).
         interpolation: OpenCV resize interpolation (``cv2.INTER_AREA``).
         min_valid_fraction: skip windows with fewer real frames than this fraction of ``T``.
+        frame_step: keep every ``frame_step``-th frame slot (1: every frame).
         workers: threads used to decode frames (``None``: all CPUs).
     """
 
@@ -62,11 +67,14 @@ class WindowConfig:
     color: str = "gray"
     interpolation: int = cv2.INTER_AREA
     min_valid_fraction: float = 0.5
+    frame_step: int = 1
     workers: int | None = None
 
     def __post_init__(self) -> None:
         if self.duration <= 0 or self.stride <= 0:
             raise ValueError("duration and stride must be positive")
+        if self.frame_step < 1:
+            raise ValueError(f"frame_step must be >= 1, got {self.frame_step}")
         if self.color not in ("gray", "rgb"):
             raise ValueError(f"color must be 'gray' or 'rgb', got {self.color!r}")
         if len(self.size) != 2 or min(self.size) <= 0:
@@ -277,6 +285,8 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
         slots = np.clip(np.rint((t_cam[idx] - starts[w]) / period_ns).astype(np.int64), 0, T - 1)
         slots, pos = np.unique(slots, return_index=True)  # jitter collisions: first frame wins
         cam_index[w, slots] = idx[pos]
+    cam_index = cam_index[:, ::config.frame_step]
+    T = cam_index.shape[1]
     mask = cam_index >= 0
     keep = mask.sum(axis=1) >= max(1, int(np.ceil(config.min_valid_fraction * T)))
     starts, cam_index, mask = starts[keep], cam_index[keep], mask[keep]
@@ -306,5 +316,6 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
         imu_index=imu_index, imu_t_ns=imu.t_ns, gyro=imu.gyro, accel=imu.accel,
         start_ns=starts, frame_index=frame_index.astype(np.int32), frame_mask=mask,
         imu_range=imu_range.astype(np.int64),
-        meta={"camera": config.camera, "rate_hz": rate, "frames_per_window": T},
+        meta={"camera": config.camera, "rate_hz": rate, "frames_per_window": T,
+              "frame_step": config.frame_step},
     )
