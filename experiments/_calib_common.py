@@ -119,14 +119,14 @@ def resolve(args: argparse.Namespace, sets: Sequence[str] = (), **kwargs
 def describe(calib: CalibConfig, window: WindowConfig, frames_per_window: int | None) -> str:
     """One line naming the model, windows and optimiser of a run (the tables' header)."""
     m, t = calib.model, calib.train
-    rate = f", every {window.frame_step}th frame" if window.frame_step > 1 else ""
-    frames = "?" if frames_per_window is None else frames_per_window
+    frames = "?" if frames_per_window is None else (
+        f"{frames_per_window} frames at {frames_per_window / window.duration:g} Hz")
     return (f"frames {window.size[0]}x{window.size[1]} {window.color}, patch "
             f"{m.patch[0]}x{m.patch[1]}, d {m.d_model}, {m.heads} heads, {m.layers} "
             f"{'pre' if m.norm_first else 'post'}-norm layers, dropout {m.dropout:g}, "
             f"{'video + IMU' if m.use_video else 'IMU only'}, "
             f"{'standardised' if m.standardize else 'raw SI'} IMU in and offsets out; "
-            f"{window.duration:g} s windows ({frames} frames{rate}) every "
+            f"{window.duration:g} s windows ({frames}) every "
             f"{window.stride:g} s; batch {t.batch_size}, AdamW lr {t.learning_rate:g}, "
             f"patience {t.patience}; loss sign term {calib.loss.sign_term!r}, "
             f"{calib.loss.units} units; injection {calib.injection.protocol!r} "
