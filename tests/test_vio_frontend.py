@@ -172,6 +172,20 @@ def test_real_stereo_matches_satisfy_epipolar_constraint(euroc_frames):
     assert d.max() <= cfg.stereo_epipolar_px * 1.5 and d.mean() < 0.5
 
 
+def test_real_stereo_seeded_by_previous_disparity_finds_the_same_matches(euroc_frames):
+    # Seeding the left-right flow with the previous frame's disparity (one pyramid level)
+    # must land where the full pyramid search lands, and lose no matches to speak of.
+    seq, frames = euroc_frames
+    _, seeded = _run(seq, frames, FrontendConfig())
+    _, full = _run(seq, frames, FrontendConfig(stereo_seed_disparity=False))
+    for k, (a, b) in enumerate(zip(seeded, full, strict=True)):
+        np.testing.assert_array_equal(a.ids, b.ids)  # the temporal tracks are untouched
+        both = a.stereo_mask & b.stereo_mask
+        assert a.n_stereo >= b.n_stereo - 3, f"frame {k}: {a.n_stereo} vs {b.n_stereo}"
+        assert both.sum() >= b.n_stereo - 3
+        np.testing.assert_allclose(a.uv_right[both], b.uv_right[both], atol=0.05)
+
+
 def test_real_corners_respect_min_distance(euroc_frames):
     seq, frames = euroc_frames
     cfg = FrontendConfig()

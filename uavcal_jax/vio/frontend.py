@@ -12,9 +12,10 @@ For each stereo frame :meth:`FeatureTracker.track`:
 4. keeps the surviving corners at least ``min_distance_px`` apart, longest-tracked first, and
    when fewer than ``redetect_below`` remain adds ``goodFeaturesToTrack`` corners outside their
    exclusion circles, up to ``max_features``, each with a new persistent id;
-5. tracks every left corner into the right image with the same forward-backward check and
-   keeps the matches consistent with the known extrinsic (epipolar distance, a triangulation
-   in front of the camera or at infinity).
+5. tracks every left corner into the right image with the same forward-backward check
+   (seeded by its previous disparity when it had a match in the previous frame) and keeps the
+   matches consistent with the known extrinsic (epipolar distance, a triangulation in front
+   of the camera or at infinity).
 
 The output, :class:`FrameFeatures`, has fixed capacity ``max_features`` with masks, so the
 back end's arrays keep their shapes. Coordinates: pixels ``(u, v)`` with integer values at
@@ -221,6 +222,9 @@ class FeatureTracker:
         """Forget every track (ids keep increasing, so a reset never reuses one)."""
         self._img = None
         self._pts = np.zeros((0, 2), np.float32)
+        # the last frame's stereo matches: ids (sorted) and right-minus-left pixel offsets
+        self._disp_ids = np.zeros(0, np.int64)
+        self._disp = np.zeros((0, 2), np.float32)
         self._ids = np.zeros(0, np.int64)
         self._age = np.zeros(0, np.int32)
 
@@ -281,6 +285,30 @@ class FeatureTracker:
         ok &= np.linalg.norm(back - pts0.reshape(-1, 2), axis=1) <= cfg.fb_threshold_px
         ok &= self._in_border(pts1, img1.shape) & np.all(np.isfinite(pts1), axis=1)
         return pts1, ok
+
+    def _stereo_flow(self, img, img_r, pts: np.ndarray, ids: np.ndarray):
+        """Left-to-right LK with the forward-backward check; returns ``(uv_right, ok)``.
+
+        A corner matched in the previous frame is seeded with that frame's disparity (the
+        right-minus-left offset changes little from frame to frame) and tracked, like a
+        gyro-seeded temporal track, on ``predicted_max_level`` pyramid levels; the others
+        search the whole pyramid. Seeding halves the stereo stage's cost (one pyramid level
+        instead of three for most corners); the forward-backward check is the same.
+        """
+        seeded = np.zeros(len(pts), bool)
+        disp = np.zeros_like(pts)
+        if self.config.stereo_seed_disparity and len(self._disp_ids):
+            at = np.minimum(np.searchsorted(self._disp_ids, ids), len(self._disp_ids) - 1)
+            seeded = self._disp_ids[at] == ids
+            disp[seeded] = self._disp[at[seeded]]
+        uv_r = np.zeros_like(pts)
+        ok = np.zeros(len(pts), bool)
+        if seeded.any():
+            uv_r[seeded], ok[seeded] = self._flow_fb(img, img_r, pts[seeded],
+                                                     pts[seeded] + disp[seeded], -disp[seeded])
+        if not seeded.all():
+            uv_r[~seeded], ok[~seeded] = self._flow_fb(img, img_r, pts[~seeded])
+        return uv_r, ok
 
     def _predict(self, R_b0_b1: np.ndarray) -> np.ndarray:
         """Pixels of the previous corners after the body rotation ``R_b0_b1`` alone."""
@@ -385,11 +413,14 @@ class FeatureTracker:
         xy_r = np.zeros((n, 2))
         st = np.zeros(n, bool)
         if img_r is not None and n:
-            uv_r, st = self._flow_fb(img, img_r, pts)
+            uv_r, st = self._stereo_flow(img, img_r, pts, ids)
             xy_r = self._undistort(uv_r, self.K1, self.D1)
             fx = float(self.K0[0, 0])
             st &= stereo_epipolar_distance(xy, xy_r, self.T_C0C1) * fx <= cfg.stereo_epipolar_px
             st &= _stereo_in_front(xy, xy_r, self.T_C0C1, cfg.stereo_epipolar_px / fx)
+            order = np.argsort(ids[st])
+            self._disp_ids = ids[st][order]
+            self._disp = (uv_r - pts)[st][order].astype(np.float32)
             uv_r = np.where(st[:, None], uv_r, 0.0)
             xy_r = np.where(st[:, None], xy_r, 0.0)
         t5 = clock()

@@ -62,6 +62,10 @@ class FrontendConfig:
             epipolar lines of the known extrinsic is at most this, in normalised units times
             the left focal length (pixels); ``math.inf`` switches the check off (VINS-Fusion
             has none; its back end sees every forward-backward-consistent match).
+        stereo_seed_disparity: a corner matched left-to-right in the previous frame starts
+            its stereo LK at that frame's disparity on ``predicted_max_level`` levels (as a
+            gyro-seeded temporal track; fewer than ``min_predicted_tracked`` survivors rerun
+            it from scratch); ``False``: every corner searches all ``lk_max_level`` levels.
         equalize: how both images are equalised before tracking. ``"clahe"`` is VINS-Mono's
             ``equalize: 1`` on EuRoC (``clahe_clip`` and ``clahe_tiles``: its clip limit and
             tile grid, VINS 3.0 and 8x8); ``"histogram"`` is ``cv2.equalizeHist``; ``"none"``
@@ -97,6 +101,7 @@ class FrontendConfig:
     virtual_focal_px: float = 460.0
     stereo: bool = True
     stereo_epipolar_px: float = 1.5
+    stereo_seed_disparity: bool = True
     equalize: str = "histogram"
     clahe_clip: float = 3.0
     clahe_tiles: int = 8
