@@ -71,8 +71,8 @@ from uavcal_jax.vio.window import CalibParams, Keyframes
 from uavcal_jax.vio.window_ops import (
     empty_window,
     insert_frame,
+    insert_solve_prune,
     preintegrate_padded,
-    prune,
     window_summary,
 )
 
@@ -240,7 +240,10 @@ class StereoVio:
     def _mirror(self) -> int:
         """Read the device's landmark and observation masks back; forget dead landmarks.
         Returns the number of active landmarks."""
-        s = jax.device_get(window_summary(self.problem))
+        return self._apply_summary(jax.device_get(window_summary(self.problem)))
+
+    def _apply_summary(self, s: dict) -> int:
+        """:meth:`_mirror` from a :func:`window_summary` already on the host."""
         self.lm_used = np.array(s["landmark_mask"])
         self.obs_used = np.array(s["observation_mask"])
         self.id_to_landmark = {i: l for i, l in self.id_to_landmark.items() if self.lm_used[l]}
@@ -437,17 +440,17 @@ class StereoVio:
 
         s = self.n + 1
         upd = self._measurements(feats)
-        self.state, self.problem, self.samples = insert_frame(
-            self.state, self.problem, self.samples, s, _keyframe(pred), pim, row, *upd)
-        self.state, info = structured_solve(self.state, self.problem, self.params,
-                                            self.config.solver)
-        self.problem = prune(self.state, self.problem, self.params,
-                             min_depth=self.config.min_stereo_depth * 0.5)
-        active = self._mirror()
+        self.state, self.problem, self.samples, info, summary, newest = insert_solve_prune(
+            self.state, self.problem, self.samples, s, _keyframe(pred), pim, row, upd,
+            self.params, self.config.solver, self.config.min_stereo_depth * 0.5)
+        info, summary, newest = jax.device_get((info, summary, newest))
+        active = self._apply_summary(summary)
         self.n = s
         self.slot_t.append(t_ns)
         self.slot_kf.append(is_kf)
-        est = _slot_nav(self.state, s, t_ns)
+        est = _Nav(t_ns, *(np.array(x) for x in (newest.rotation, newest.position,
+                                                 newest.velocity, newest.bias_gyro,
+                                                 newest.bias_accel)))
         t_solve = clock()
         timings = {"frontend": fe_ms, "solve": 1e3 * (t_solve - t_start)}
 

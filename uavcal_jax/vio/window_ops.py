@@ -13,9 +13,10 @@ import jax
 import jax.numpy as jnp
 
 from uavcal_jax.imu import ImuNoise, Preintegrated, preintegrate
-from uavcal_jax.vio.config import CostConfig
+from uavcal_jax.vio.config import CostConfig, SolverConfig
 from uavcal_jax.vio.marginalize import ImuSamples
 from uavcal_jax.vio.residuals import factor_residuals, landmark_mask
+from uavcal_jax.vio.solver import SolveInfo, structured_solve
 from uavcal_jax.vio.window import (
     FRAME_DIM,
     CalibParams,
@@ -28,7 +29,8 @@ from uavcal_jax.vio.window import (
     WindowState,
 )
 
-__all__ = ["empty_window", "insert_frame", "preintegrate_padded", "prune", "window_summary"]
+__all__ = ["empty_window", "insert_frame", "insert_solve_prune", "preintegrate_padded", "prune",
+           "window_summary"]
 
 
 def _identity_frames(n: int) -> Keyframes:
@@ -141,3 +143,27 @@ def window_summary(problem: WindowProblem) -> dict[str, jax.Array]:
     n_imu = jnp.sum(problem.imu.mask & problem.frame_mask[:-1] & problem.frame_mask[1:])
     return {"landmark_mask": problem.landmarks.mask, "observation_mask": problem.observations.mask,
             "active_landmarks": jnp.sum(active), "rows": 2 * n_obs + FRAME_DIM * n_imu}
+
+
+@functools.partial(jax.jit, static_argnames=("solver", "min_depth"))
+def insert_solve_prune(state: WindowState, problem: WindowProblem, samples: ImuSamples, slot,
+                       frame: Keyframes, pim: Preintegrated, row: ImuSamples, updates: tuple,
+                       params: CalibParams, solver: SolverConfig, min_depth: float
+                       ) -> tuple[WindowState, WindowProblem, ImuSamples, SolveInfo, dict,
+                                  Keyframes]:
+    """A frame's whole window edit as one compiled call: :func:`insert_frame` (``updates``:
+    its landmark and observation arguments, in order), the structured solve, :func:`prune`
+    (``min_depth`` m) and :func:`window_summary`. On XLA:CPU each jitted call and each
+    host transfer has a fixed cost comparable to these small kernels, so the estimator makes
+    one call per frame and reads the results back in one transfer.
+
+    Returns ``(state, problem, samples, info, summary, newest)``: the solved and pruned
+    window, the solve's :class:`SolveInfo`, the summary and the solved keyframe in ``slot``
+    (no leading axis).
+    """
+    state, problem, samples = insert_frame(state, problem, samples, slot, frame, pim, row,
+                                           *updates)
+    state, info = structured_solve(state, problem, params, solver)
+    problem = prune(state, problem, params, min_depth=min_depth)
+    newest = jax.tree_util.tree_map(lambda x: x[slot], state.frames)
+    return state, problem, samples, info, window_summary(problem), newest
