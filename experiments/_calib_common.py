@@ -3,7 +3,7 @@
 - The two modes, both presets of :data:`uavcal_jax.calib.protocols.PRESETS` (what ``uavcal
   calib train --preset`` reads): **budget** = ``small`` (160x96 frames in 32x32 patches at
   10 Hz, d 64, pre-norm, AdamW 1e-3, the loss in each channel's offset units, patience 10),
-  with non-overlapping windows (``window.stride`` = ``window.duration``, :func:`resolve`);
+  with a window every 10 s (the preset's window length: non-overlapping, :func:`resolve`);
   **paper** (``--paper``) = ``paper`` (Table 2 of Avola et al. 2023, the package defaults,
   1 s stride). ``--set`` strings apply last, in either mode.
 - Run settings, trials and statistics come from :mod:`uavcal_jax.calib.protocols`, as for
@@ -65,7 +65,7 @@ def add_common_arguments(ap: argparse.ArgumentParser, out_default: Path) -> None
     ap.add_argument("--paper", action="store_true",
                     help=f"the {PAPER_PRESET!r} preset (Table 2) and its full epochs with "
                          "early stopping, no time limit (days on a CPU) [default: the "
-                         f"{BUDGET_PRESET!r} preset, non-overlapping windows]")
+                         f"{BUDGET_PRESET!r} preset, a window every window length]")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE,
                     help="simulated-set cache [default: %(default)s]")
     ap.add_argument("--out", type=Path, default=out_default,
@@ -106,13 +106,17 @@ def preset(args: argparse.Namespace) -> str:
 def resolve(args: argparse.Namespace, sets: Sequence[str] = (), **kwargs
             ) -> tuple[CalibConfig, LoopConfig, WindowConfig]:
     """:func:`~uavcal_jax.calib.protocols.resolve_configs` of the mode: its preset, the
-    arguments ``kwargs``, the script's ``sets``, then ``--set``. Budget mode cuts
-    non-overlapping windows (``window.stride`` = ``window.duration``) unless a setting gives
-    the stride: the same data per epoch at a tenth of the paper's 1 s stride's cost."""
-    sets = [*sets, *args.set]
-    calib, loop, window = resolve_configs(sets, preset=preset(args), **kwargs)
-    if not args.paper and not any(s.split("=")[0].strip() == "window.stride" for s in sets):
-        window = dataclasses.replace(window, stride=window.duration)
+    arguments ``kwargs``, the script's ``sets``, then ``--set``. Budget mode cuts a window
+    every ``window.duration`` seconds of the mode's own configuration (preset and ``--set``:
+    10 s, non-overlapping windows, the same data per epoch at a tenth of the paper's 1 s
+    stride's cost) unless a setting gives the stride; a script's ``sets`` that change the
+    window length keep that stride, as the paper keeps its 1 s, so every window length has
+    as many windows, and as many steps per epoch."""
+    both = [*sets, *args.set]
+    calib, loop, window = resolve_configs(both, preset=preset(args), **kwargs)
+    if not args.paper and not any(s.split("=")[0].strip() == "window.stride" for s in both):
+        _, _, mode_window = resolve_configs(args.set, preset=preset(args))
+        window = dataclasses.replace(window, stride=mode_window.duration)
     return calib, loop, window
 
 
@@ -351,7 +355,7 @@ def mode_line(rec_budget: dict, schedule: dict, max_epochs: int, what: str) -> s
     if rec_budget["mode"] == "paper":
         return (f"paper mode (preset {PAPER_PRESET!r}: Table 2, at most {max_epochs} epochs, "
                 f"early stopping on the training loss); {took}")
-    return (f"budget mode (preset {BUDGET_PRESET!r}, non-overlapping windows): "
+    return (f"budget mode (preset {BUDGET_PRESET!r}, stride = its window length): "
             f"{rec_budget['budget_min']:g} min for the whole script ({took}); {what} "
             f"{schedule['target_epochs']} epochs (two first, then a common count that fills "
             "the time left; fewer where early stopping ended a fit), best epoch by training "

@@ -40,16 +40,19 @@ The ``small`` preset's smaller frames (160x96) make the larger patches cover mor
 than at the paper's 320x180.
 
 Budget (``--budget``, default 20 min, the whole script): the ``small`` preset
-(:data:`uavcal_jax.calib.protocols.PRESETS`) on non-overlapping windows (the stride follows
-the window length), 2 seeds, and each grid at the reduced resolution of the table's budget
-column: the preset's value and one other (the cheaper end of a Table 5 grid, the shorter
-window of Table 1), every value of the optimisation grids; ``--full-grid``: every value. That
-is 13 distinct fits, each a compile of its own (1-3 min on 2 shared cores the first time, a
-few seconds once in the persistent XLA cache: a first run pays them out of its budget). Every
-fit first runs two epochs, then all are raised together to a common epoch count that fills the
-time left (see ``experiments/_calib_common.py``): every point of a grid trains equally long.
-On 2 shared CPU cores the first two epochs of the 13 fits take most of the default budget;
-``--budget 90`` or ``--grids`` subsets buy epochs. ``--paper`` selects the ``paper`` preset
+(:data:`uavcal_jax.calib.protocols.PRESETS`) with a window every 10 s (non-overlapping at the
+preset's 10 s; the window grid keeps that stride, as the paper keeps its 1 s, so every window
+length has as many windows and steps per epoch), 2 seeds, and each grid at the reduced
+resolution of the table's budget column: the preset's value and one other (the cheaper end of
+a Table 5 grid, the shorter window of Table 1), every value of the optimisation grids
+(``--full-grid``: every value). That is 14 distinct fits, each a compile of its own (1-3 min on
+2 shared cores the first time, seconds once in the persistent XLA cache: a first run pays them
+out of its budget). Every fit first runs two epochs, then all are raised together to a common
+epoch count that fills the time left (see ``experiments/_calib_common.py``): every point of a
+grid trains equally long. On 2 shared CPU cores (warm cache) the two first epochs of the 14
+fits (~106 training windows, 7 steps an epoch) and their evaluations take the whole default
+budget, more when the cores are busier: it checks the pipeline and the baselines, and
+``--budget 150`` or ``--grids`` subsets buy epochs. ``--paper`` selects the ``paper`` preset
 (Table 2), every value of every grid and the full epochs instead.
 
 Usage::
