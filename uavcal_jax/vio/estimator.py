@@ -211,10 +211,11 @@ class StereoVio:
                                       jnp.asarray(T[:, :3, 3]))
         self.resets = 0
         self._last_good: _Nav | None = None
-        # the front end's own view: its previous frame and the newest gyro bias the back end
-        # published (one frame old when the stages run concurrently; it only seeds the flow)
+        # the front end's own view: its previous frame; and the newest gyro bias the back end
+        # published, which seeds the flow (read through flow_bias(), a snapshot, never by a
+        # front end running concurrently with update())
         self._fe_t_ns: int | None = None
-        self._fe_bias_gyro = np.zeros(3)
+        self._published_bias_gyro = np.zeros(3)
         self._depth_for: FrameFeatures | None = None
         self._clear_window()
 
@@ -379,23 +380,31 @@ class StereoVio:
     def process(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None
                 ) -> FrameEstimate:
         """Process one stereo frame (either image may be ``None``: a dropped frame):
-        :meth:`track` then :meth:`update`."""
-        return self.update(self.track(t_ns, img_left, img_right))
+        :meth:`track` (seeded at the newest published gyro bias) then :meth:`update`."""
+        return self.update(self.track(t_ns, img_left, img_right, self.flow_bias()))
 
-    def track(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None
-              ) -> TrackedFrame:
-        """The front end of one frame: the gyro rotation since the previous frame (at the
-        newest published gyro bias) seeds the optical flow. Touches only the tracker and the
+    def flow_bias(self) -> np.ndarray:
+        """(3,) rad/s, a copy of the newest gyro bias :meth:`update` published (zero before
+        the first pose): what a caller hands :meth:`track` to seed the flow."""
+        return self._published_bias_gyro.copy()
+
+    def track(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None,
+              bias_gyro: np.ndarray) -> TrackedFrame:
+        """The front end of one frame: the gyro rotation since the previous frame, corrected
+        by ``bias_gyro`` (3,) rad/s, seeds the optical flow. Touches only the tracker and the
         front end's own state, so it may run in another thread than :meth:`update` (one
-        frame ahead of it: OpenCV and XLA release the GIL)."""
+        frame ahead of it: OpenCV and XLA release the GIL). The bias is an argument, not read
+        here, so that which estimate seeds the flow is decided by the caller (a snapshot
+        taken when the task is handed out, :meth:`flow_bias`) and not by thread timing."""
         t_ns = int(t_ns)
         t0 = time.perf_counter()
+        bias_gyro = np.asarray(bias_gyro, np.float64).reshape(3)
         R_gyro = None
         if self._fe_t_ns is not None and t_ns > self._fe_t_ns:
             iv = self._raw_interval(self._fe_t_ns, t_ns)
             if iv is not None:
                 R_gyro = np.eye(3)
-                for dt, w in zip(iv.dt, iv.gyro - self._fe_bias_gyro, strict=True):
+                for dt, w in zip(iv.dt, iv.gyro - bias_gyro, strict=True):
                     R_gyro = R_gyro @ Rotation.from_rotvec(w * dt).as_matrix()
         self._fe_t_ns = t_ns
         feats = self.tracker.track(t_ns * 1e-9, img_left, img_right, R_gyro)
@@ -406,7 +415,7 @@ class StereoVio:
         with jax.enable_x64(True):
             est = self._update(frame)
         if est.has_pose:
-            self._fe_bias_gyro = np.asarray(est.bias_gyro, np.float64)
+            self._published_bias_gyro = np.array(est.bias_gyro, np.float64)
         return est
 
     def _estimate(self, nav: _Nav | None, status: str, t_ns: int, **kw) -> FrameEstimate:

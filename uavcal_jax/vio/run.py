@@ -120,8 +120,7 @@ def run_vio(sequence: Sequence, config: EstimatorConfig | None = None,
             sample first (the calibrator's output); ``None``: none.
         show_progress: a progress bar on stderr.  max_frames: stop after this many frames.
         pipelined: run the front end one frame ahead in a worker thread
-            (:func:`estimate_stream`); the estimates are the same either way up to the gyro
-            bias that seeds the optical flow (one frame older when pipelined).
+            (:func:`estimate_stream`); the estimates are identical either way.
 
     Raises:
         DataError: no IMU, no IMU calibration, or a camera missing.
@@ -195,7 +194,10 @@ def estimate_stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]],
     :meth:`StereoVio.track`) runs in a worker thread while the back end solves frame ``k``
     (:meth:`StereoVio.update`) -- two stages on two cores, as VINS-Fusion's threads; each
     estimate's ``timings["wall"]`` is then the wall-clock time since the previous estimate
-    (the throughput a caller sees). Otherwise the stages alternate in this thread.
+    (the throughput a caller sees). Otherwise the stages alternate in this thread. Either
+    way the front end of frame ``k + 1`` is seeded with the gyro bias published before
+    ``update(k)`` (:meth:`StereoVio.flow_bias`, snapshotted when the task is handed out), so
+    both modes give identical estimates, run after run.
     """
     with one_blas_thread():
         yield from _stream(vio, inputs, pipelined)
@@ -203,13 +205,20 @@ def estimate_stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]],
 
 def _stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]], pipelined: bool
             ) -> Iterator[FrameEstimate]:
-    def front(load):
-        return vio.track(*load())
+    # The front end of frame k + 1 is seeded with the gyro bias published before update(k)
+    # runs, in both modes: it is all a pipelined front end can have seen, and snapshotting it
+    # when the task is handed out (not reading it while update(k) writes it) makes a run
+    # reproducible and the two modes identical.
+    def front(load, bias_gyro):
+        return vio.track(*load(), bias_gyro)
 
     last = time.perf_counter()
     if not pipelined:
+        seed = vio.flow_bias()
         for load in inputs:
-            est = vio.update(front(load))
+            tracked = front(load, seed)
+            seed = vio.flow_bias()
+            est = vio.update(tracked)
             now = time.perf_counter()
             est.timings["wall"] = 1e3 * (now - last)
             last = now
@@ -218,11 +227,11 @@ def _stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]], pipelined: bo
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="vio-frontend") as pool:
         it = iter(inputs)
         first = next(it, None)
-        pending = pool.submit(front, first) if first is not None else None
+        pending = pool.submit(front, first, vio.flow_bias()) if first is not None else None
         while pending is not None:
             tracked = pending.result()
             nxt = next(it, None)
-            pending = pool.submit(front, nxt) if nxt is not None else None
+            pending = pool.submit(front, nxt, vio.flow_bias()) if nxt is not None else None
             est = vio.update(tracked)
             now = time.perf_counter()
             est.timings["wall"] = 1e3 * (now - last)
