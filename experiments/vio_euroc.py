@@ -2,7 +2,9 @@
 trajectories: a table laid out like RPEOD's Table 2 (ATE per sequence and mean time per frame)
 and a PNG of estimate against truth per sequence.
 
-For each trajectory in ``../shared/data/trajectories/euroc/`` a stereo sequence is simulated
+For each trajectory in ``../shared/data/trajectories/euroc/`` (or ``--trajectories``: any
+folder of TUM files, e.g. the UZH-FPV drone-racing flights, which are faster than EuRoC's
+and were never used to tune the estimator) a stereo sequence is simulated
 (752x480, EuRoC's camera calibration and ADIS16448 IMU noise, the camera model -- sensor
 noise, exposure, motion blur -- on, as ``uavcal simulate`` does by default) over
 ``--duration`` seconds from ``--start`` (``full``: the whole trajectory, the issue's setting;
@@ -26,6 +28,8 @@ Usage::
     python experiments/vio_euroc.py                         # 30 s of each, ~1 h on 2 cores
     python experiments/vio_euroc.py --duration full --ideal # the issue's full setting
     python experiments/vio_euroc.py --sequences V1_01_easy MH_01_easy --duration 20
+    python experiments/vio_euroc.py --trajectories ../shared/data/trajectories/uzh_fpv \
+        --duration full --no-micro --out experiments/out/vio_uzh_fpv
 """
 
 from __future__ import annotations
@@ -60,9 +64,9 @@ def _duration(text: str) -> float | None:
     return None if text == "full" else float(text)
 
 
-def _simulated(name: str, start: float, duration: float | None, ideal: bool, cache: Path,
-               seed: int) -> Path:
-    traj = TRAJECTORIES / f"{name}.txt"
+def _simulated(trajectories: Path, name: str, start: float, duration: float | None,
+               ideal: bool, cache: Path, seed: int) -> Path:
+    traj = trajectories / f"{name}.txt"
     if duration is None:
         duration = trajectory_span(traj) - start - 0.1
     cfg = SimConfig(trajectory=str(traj), start=start, duration=round(duration, 1), seed=seed,
@@ -127,7 +131,11 @@ def _table(rows: list[dict], published: dict, ideal: dict) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sequences", nargs="+", default=None,
-                    help="trajectory names (default: all 11)")
+                    help="trajectory names (default: every file of --trajectories)")
+    ap.add_argument("--trajectories", type=Path, default=TRAJECTORIES,
+                    help="folder of TUM trajectories to fly, e.g. ../shared/data/trajectories/"
+                         "uzh_fpv for flights the estimator was not tuned on "
+                         "[default: %(default)s]")
     ap.add_argument("--start", type=float, default=0.0, help="seconds into each trajectory")
     ap.add_argument("--duration", type=_duration, default=30.0,
                     help="seconds per sequence, or 'full' [default: 30]")
@@ -143,18 +151,22 @@ def main() -> None:
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     published = json.loads(args.published.read_text()) if args.published else {}
-    names = args.sequences or sorted(p.stem for p in TRAJECTORIES.glob("*.txt"))
+    names = args.sequences or sorted(p.stem for p in args.trajectories.glob("*.txt"))
+    if not names:
+        ap.error(f"no trajectories (*.txt) in {args.trajectories}")
     t0 = time.perf_counter()
     rows, ideal = [], {}
     if not args.no_micro and MICRO.is_dir():
         rows.append(_evaluate(MICRO, "V1_01_micro (real)", args.out, not args.quiet))
     for name in names:
-        root = _simulated(name, args.start, args.duration, False, args.cache, args.seed)
+        root = _simulated(args.trajectories, name, args.start, args.duration, False,
+                          args.cache, args.seed)
         label = f"{name}_s{args.start:g}"
         rows.append(_evaluate(root, label, args.out, not args.quiet))
         print(f"{label}: ATE {rows[-1]['ate_rmse_m']:.3f} m", flush=True)
         if args.ideal:
-            root_i = _simulated(name, args.start, args.duration, True, args.cache, args.seed)
+            root_i = _simulated(args.trajectories, name, args.start, args.duration, True,
+                                args.cache, args.seed)
             ideal[label] = _evaluate(root_i, label + "_ideal", args.out, not args.quiet)
     table = _table(rows, published, ideal)
     (args.out / "vio_euroc.md").write_text(table + "\n")
