@@ -65,13 +65,13 @@ def _duration(text: str) -> float | None:
 
 
 def _simulated(trajectories: Path, name: str, start: float, duration: float | None,
-               ideal: bool, cache: Path, seed: int) -> Path:
+               ideal: bool, cache: Path, seed: int, progress: bool) -> Path:
     traj = trajectories / f"{name}.txt"
     if duration is None:
         duration = trajectory_span(traj) - start - 0.1
     cfg = SimConfig(trajectory=str(traj), start=start, duration=round(duration, 1), seed=seed,
                     depth=False, targets=False, ideal_camera=ideal)
-    return cached_simulation(cfg, cache, name + ("_ideal" if ideal else ""))
+    return cached_simulation(cfg, cache, name + ("_ideal" if ideal else ""), progress=progress)
 
 
 def _evaluate(root: Path, label: str, out_dir: Path, progress: bool) -> dict:
@@ -160,13 +160,13 @@ def main() -> None:
         rows.append(_evaluate(MICRO, "V1_01_micro (real)", args.out, not args.quiet))
     for name in names:
         root = _simulated(args.trajectories, name, args.start, args.duration, False,
-                          args.cache, args.seed)
+                          args.cache, args.seed, not args.quiet)
         label = f"{name}_s{args.start:g}"
         rows.append(_evaluate(root, label, args.out, not args.quiet))
         print(f"{label}: ATE {rows[-1]['ate_rmse_m']:.3f} m", flush=True)
         if args.ideal:
             root_i = _simulated(args.trajectories, name, args.start, args.duration, True,
-                                args.cache, args.seed)
+                                args.cache, args.seed, not args.quiet)
             ideal[label] = _evaluate(root_i, label + "_ideal", args.out, not args.quiet)
     table = _table(rows, published, ideal)
     (args.out / "vio_euroc.md").write_text(table + "\n")
