@@ -273,6 +273,38 @@ def test_ransac_rejects_matches_off_the_epipolar_geometry(method):
     assert reject_outliers(xy0[:7], xy1[:7], FrontendConfig()).all(), "too few to fit"
 
 
+@pytest.mark.parametrize("method", ["fundamental", "essential"])
+def test_ransac_on_degenerate_matches_keeps_them_instead_of_raising(method, monkeypatch):
+    # Half the points on one spot, or all on a line, barely moving: OpenCV 5's USAC asserts
+    # "!model.empty()" on some such sets (found by a search like this one, and on a simulated
+    # MH_01 flight) where 4.x returned no model. Whatever the OpenCV version, no set raises.
+    rng = np.random.default_rng(0)
+    config = FrontendConfig(outlier_method=method)
+    for trial in range(600):
+        n = int(rng.integers(8, 40))
+        xy0 = rng.normal(size=(n, 2))
+        if trial % 3:
+            xy0[: n // 2] = xy0[0]
+        else:
+            xy0[:, 1] = 0.3 * xy0[:, 0]
+        xy1 = xy0 + rng.normal(scale=3e-3, size=xy0.shape)
+        inliers = reject_outliers(xy0, xy1, config)
+        assert inliers.shape == (n,) and inliers.dtype == bool
+
+    # where OpenCV raises, nothing is rejected: the same as a set that gives no model
+    def failing(*args, **kwargs):
+        raise cv2.error("(-215:Assertion failed) !model.empty() in function 'setModelParameters'")
+
+    monkeypatch.setattr(cv2, "findFundamentalMat", failing)
+    monkeypatch.setattr(cv2, "findEssentialMat", failing)
+    xy = rng.normal(size=(20, 2))
+    assert reject_outliers(xy, xy + 1e-3, config).all()
+    # nor where it finds fewer inliers than a minimal sample (USAC's all-zero mask)
+    monkeypatch.setattr(cv2, "findFundamentalMat", lambda *a, **k: (None, np.zeros((20, 1))))
+    monkeypatch.setattr(cv2, "findEssentialMat", lambda *a, **k: (None, np.zeros((20, 1))))
+    assert reject_outliers(xy, xy + 1e-3, config).all()
+
+
 # --- bad frames -----------------------------------------------------------------------------
 
 

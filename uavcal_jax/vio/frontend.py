@@ -130,7 +130,8 @@ def reject_outliers(xy0: np.ndarray, xy1: np.ndarray, config: FrontendConfig) ->
     does, changes nothing: OpenCV normalises the points first); with ``"essential"`` an
     essential matrix to the normalised points, threshold ``ransac_threshold_px /
     virtual_focal_px``. ``"none"`` keeps everything, as do fewer than 8 matches and a
-    degenerate set that gives no model.
+    degenerate set that gives no model (OpenCV returns none, raises, or finds fewer inliers
+    than a minimal sample).
 
     Args:
         xy0, xy1: (N, 2) the matches in the previous and the current frame.
@@ -144,17 +145,25 @@ def reject_outliers(xy0: np.ndarray, xy1: np.ndarray, config: FrontendConfig) ->
         return np.ones(n, bool)
     xy0, xy1 = np.asarray(xy0, np.float64), np.asarray(xy1, np.float64)
     usac = config.estimator == "usac"
-    if config.outlier_method == "fundamental":
-        f = config.virtual_focal_px
-        _, inl = cv2.findFundamentalMat(xy0 * f, xy1 * f,
-                                        cv2.USAC_FM_8PTS if usac else cv2.FM_RANSAC,
-                                        config.ransac_threshold_px, config.ransac_confidence)
-    else:
-        _, inl = cv2.findEssentialMat(xy0, xy1, np.eye(3),
-                                      cv2.USAC_DEFAULT if usac else cv2.RANSAC,
-                                      config.ransac_confidence,
-                                      config.ransac_threshold_px / config.virtual_focal_px)
-    return np.ones(n, bool) if inl is None else inl.reshape(-1)[:n].astype(bool)
+    try:
+        if config.outlier_method == "fundamental":
+            f = config.virtual_focal_px
+            _, inl = cv2.findFundamentalMat(xy0 * f, xy1 * f,
+                                            cv2.USAC_FM_8PTS if usac else cv2.FM_RANSAC,
+                                            config.ransac_threshold_px, config.ransac_confidence)
+        else:
+            _, inl = cv2.findEssentialMat(xy0, xy1, np.eye(3),
+                                          cv2.USAC_DEFAULT if usac else cv2.RANSAC,
+                                          config.ransac_confidence,
+                                          config.ransac_threshold_px / config.virtual_focal_px)
+    except cv2.error:
+        # OpenCV 5's USAC asserts (``!model.empty()``) where 4.x returned no model, on match
+        # sets with no non-degenerate 8-point sample (seen on a simulated EuRoC flight)
+        inl = None
+    inl = None if inl is None else inl.reshape(-1)[:n].astype(bool)
+    # a model has at least its minimal sample as inliers: fewer means USAC found none (it
+    # returns an all-zero mask on e.g. coincident points), not that every match is wrong
+    return np.ones(n, bool) if inl is None or inl.sum() < _MIN_RANSAC_POINTS else inl
 
 
 def _stereo_in_front(xy_left: np.ndarray, xy_right: np.ndarray, T_C0C1: np.ndarray,
