@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from conftest import shared_path
 from scipy.spatial.transform import Rotation
+from vio_frames import frames_ate, process_frames
 
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.euroc_rig import euroc_T_C0C1
 from uavcal_jax.geometry import so3
 from uavcal_jax.vio import ate
-from uavcal_jax.vio.estimator import StereoVio
 from uavcal_jax.vio.initialize import (
     gravity_aligned_rotation,
     gyro_bias_from_rotations,
@@ -77,23 +77,7 @@ def _run_with(micro, black: range = range(0), imu_gap_s: tuple[float, float] | N
         imu = dataclasses.replace(seq.imu, t_ns=seq.imu.t_ns[keep], gyro=seq.imu.gyro[keep],
                                   accel=seq.imu.accel[keep])
         seq = dataclasses.replace(seq, imu=imu)
-    cam0, cam1 = seq.camera("cam0"), seq.camera("cam1")
-    vio = StereoVio(cam0.calibration, cam1.calibration, seq.imu_calibration, seq.imu)
-    out = []
-    for k, (t_ns, i, j) in enumerate(stereo_pairs(seq)):
-        left = cam0.load(i)
-        right = cam1.load(j) if j is not None else None
-        if k in black:
-            left, right = np.zeros_like(left), np.zeros_like(left)
-        out.append(vio.process(t_ns, left, right))
-    return out, vio
-
-
-def _trajectory_error(frames, micro):
-    from uavcal_jax.vio.run import VioResult
-
-    res = VioResult(frames, 0, 0, None, np.zeros(6))
-    return ate(res.trajectory(), micro.ground_truth).translation
+    return process_frames(seq, black)
 
 
 def test_twenty_black_frames_coast_on_the_imu_and_recover(micro):
@@ -107,7 +91,7 @@ def test_twenty_black_frames_coast_on_the_imu_and_recover(micro):
         [f.status for f in blind]
     # tracking resumes with new landmarks once the images come back
     assert all(f.status == "tracking" and f.landmarks > 20 for f in frames[55:])
-    stats = _trajectory_error(frames, micro)
+    stats = frames_ate(frames, micro)
     assert stats.max <= 0.10 and stats.rmse <= 0.05
 
 
@@ -118,7 +102,7 @@ def test_imu_gap_resets_and_continues(micro):
     assert vio.resets >= 1
     assert all(f.has_pose and np.all(np.isfinite(f.position)) for f in frames)
     assert frames[-1].status == "tracking"
-    stats = _trajectory_error(frames, micro)
+    stats = frames_ate(frames, micro)
     assert stats.max <= 0.15
 
 
