@@ -12,6 +12,7 @@ import importlib
 import sys
 
 from uavcal_jax import __version__
+from uavcal_jax.allocator import keep_freed_memory
 from uavcal_jax.errors import DataError
 
 #: Sub-command modules under ``uavcal_jax.commands``, in ``--help`` order.
@@ -34,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    keep_freed_memory()  # many similar XLA calls ahead: reuse their buffers' pages
     try:
         return int(args.func(args) or 0)
     except DataError as err:
