@@ -11,7 +11,7 @@ import pytest
 from uavcal_jax.calib import inference
 from uavcal_jax.calib.config import CalibConfig, with_overrides
 from uavcal_jax.calib.model import GRAY_WEIGHTS, NORMALIZATION, Calibrator, patchify
-from uavcal_jax.calib.train import create_train_state
+from uavcal_jax.calib.train import create_train_state, train_step
 
 # The tiny configuration of tests/test_calib_train.py: its initialiser compiles once for both.
 CONFIG = with_overrides(CalibConfig(), [
@@ -171,3 +171,35 @@ def test_rgb_path_is_gray_plus_colour_compression(gray, sequence):
                                         "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC"))
     np.testing.assert_allclose(float(new["mean"][0]), 0.1 * float(jnp.mean(jax.nn.relu(conv))),
                                rtol=1e-4)
+
+
+def test_bfloat16_frame_encoder_rounds_only_its_products(gray, sequence):
+    """``frame_encoder_dtype="bfloat16"``: the same parameters (a float32 checkpoint loads),
+    frame tokens within bfloat16 rounding of the float32 ones but not equal to them (the
+    option acts), predictions close to float32's, and a training step whose gradients match
+    float32's to that rounding."""
+    model, variables, apply = gray
+    frames, index, mask, imu = sequence
+    config = dataclasses.replace(CONFIG, model=dataclasses.replace(
+        TINY, frame_encoder_dtype="bfloat16"))
+    half = Calibrator(config.model)
+    sample = {"frames": frames[index[:1]], "imu": imu[:1], "mask": mask[:1]}
+    assert (jax.tree.structure(half.init(jax.random.key(0), *sample.values()))
+            == jax.tree.structure(model.init(jax.random.key(0), *sample.values())))
+
+    full_tokens = np.asarray(model.apply(variables, frames, method=Calibrator.encode_frames))
+    half_tokens = half.apply(variables, frames, method=Calibrator.encode_frames)
+    assert half_tokens.dtype == jnp.float32
+    err = np.sqrt(np.mean((np.asarray(half_tokens) - full_tokens) ** 2) / np.mean(full_tokens ** 2))
+    assert 1e-4 < err < 2e-2  # bfloat16 keeps 8 significant bits: relative steps of 2^-9
+
+    want = np.asarray(apply(variables, _gather(frames, index), imu, mask))
+    got = np.asarray(half.apply(variables, frames[np.maximum(index, 0)], imu, mask))
+    assert np.abs(got - want).max() < 0.02 * np.abs(want - want.mean(0)).max()
+
+    batch = {"frames": frames[np.maximum(index, 0)], "imu": imu, "mask": mask,
+             "weight": np.ones(4, np.float32)}
+    # (the zero-initialised head gives both the mean offset's loss: compare the gradients)
+    norms = [float(train_step(create_train_state(cfg, jax.random.key(0), sample), batch,
+                              jax.random.key(1))[1]["grad_norm"]) for cfg in (CONFIG, config)]
+    assert norms[1] == pytest.approx(norms[0], rel=1e-3)

@@ -15,7 +15,13 @@ import numpy as np
 import pytest
 
 from uavcal_jax.calib.checkpoint import KINDS
-from uavcal_jax.calib.config import PROTOCOLS, CalibConfig, InjectionConfig, TrainConfig
+from uavcal_jax.calib.config import (
+    FRAME_ENCODER_DTYPES,
+    PROTOCOLS,
+    CalibConfig,
+    InjectionConfig,
+    TrainConfig,
+)
 from uavcal_jax.calib.data import gather, load_windows
 from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig, restore_run
 from uavcal_jax.calib.protocols import PRESETS
@@ -59,7 +65,7 @@ def test_parser_defaults_are_the_dataclass_defaults():
                   "set": ([], None), "preset": ("paper", tuple(PRESETS))},
         "eval": {"data": (None, None), "offsets": (None, None)},
         "predict": {"checkpoint": (None, None), "kind": ("best", KINDS), "inject": (None, None),
-                    "plot": (None, None)},
+                    "plot": (None, None), "frame_dtype": (None, FRAME_ENCODER_DTYPES)},
     }
     free = {"help", "data", "out", "run", "resume", "stop_after", "json", "func", "sequence"}
     parser = build_parser()
@@ -229,6 +235,16 @@ def _check_predict(full, seqs, tmp_path, capsys):
     np.testing.assert_allclose(res["error"], np.asarray(res["offset"]) - res["true"])
     np.testing.assert_allclose(read_offset_json(out), res["offset"])
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert res["frame_encoder_dtype"] == "float32"
+
+    # the same checkpoint with a bfloat16 frame encoder: within its rounding of the reference
+    assert main(["calib", "predict", "--checkpoint", str(trial), "--sequence", str(seq),
+                 "--inject", ",".join(map(str, inject)), "--frame-dtype", "bfloat16",
+                 "--json"]) == 0
+    half = json.loads(capsys.readouterr().out)
+    assert half["frame_encoder_dtype"] == "bfloat16"
+    spread = np.abs(ref - ref.mean(axis=0)).max()
+    assert 0 < np.abs(np.asarray(half["per_window"]) - ref).max() < 0.05 * spread
 
     assert main(["calib", "predict", "--checkpoint", str(full), "--sequence", str(seq)]) == 2
     _one_line(capsys, "trial_00")

@@ -32,8 +32,10 @@ __all__ = ["FORMAT_VERSION", "KINDS", "RESUMABLE_KEYS", "RunCheckpoints", "confi
 FORMAT_VERSION = 2
 #: The two checkpoint series of a run.
 KINDS = ("last", "best")
-#: Configuration keys a resumed run may change: the epoch budget (train longer).
-RESUMABLE_KEYS = frozenset({"calib.train.epochs"})
+#: Configuration keys a restored checkpoint may differ in: the epoch budget (a resumed run
+#: may train longer) and the frame encoder's operand type (a numerics choice: the parameters
+#: mean the same under either; checkpoints written before the field existed lack it).
+RESUMABLE_KEYS = frozenset({"calib.train.epochs", "calib.model.frame_encoder_dtype"})
 
 
 def _flatten(tree: Any, prefix: str = "") -> dict[str, Any]:

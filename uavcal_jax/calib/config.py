@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 __all__ = [
     "ACTIVATIONS",
+    "FRAME_ENCODER_DTYPES",
     "FRAME_TOKENS",
     "PROTOCOLS",
     "LOSS_UNITS",
@@ -34,6 +35,7 @@ __all__ = [
 
 ACTIVATIONS = ("relu", "gelu")
 FRAME_TOKENS = ("learned", "first_patch")
+FRAME_ENCODER_DTYPES = ("float32", "bfloat16")
 SIGN_TERMS = ("sign", "tanh")
 LOSS_UNITS = ("si", "standardized")
 PROTOCOLS = ("paper", "symmetric", "physical")
@@ -75,6 +77,17 @@ class ModelConfig:
             statistics travel with the checkpoint. ``False``: raw SI values in and out
             (accelerometer inputs near 9.81 m/s^2, paper-protocol targets of several
             m/s^2). The paper describes no normalisation; ``calib_ablation.py`` compares.
+        frame_encoder_dtype: operand type of the frame encoder's matrix products (patch
+            projection, its encoder's attention projections and feed-forward blocks: about
+            90 % of a window's arithmetic). ``"float32"`` (default, the paper's and the
+            PyTorch peer's numerics) or ``"bfloat16"``: operands rounded to bfloat16,
+            products accumulated and returned in float32, everything else (attention
+            weights, norms, the temporal/IMU/fusion blocks) float32. Integer pixels are
+            exact in bfloat16, so the patch projection multiplies raw grayscale pixel values
+            and scales the float32 product by ``pixel_scale``: its only rounding is the
+            kernel's. Twice the matrix throughput on CPUs with bfloat16 dot products
+            (AVX512-BF16, AMX) and on accelerators. The parameters stay float32, so a
+            checkpoint loads under either value (``uavcal calib predict --frame-dtype``).
     """
 
     d_model: int = 256
@@ -93,6 +106,7 @@ class ModelConfig:
     pixel_scale: float = 1.0 / 255.0
     layer_norm_eps: float = 1e-5
     standardize: bool = True
+    frame_encoder_dtype: str = "float32"
 
     def __post_init__(self) -> None:
         if self.d_model <= 0 or self.heads <= 0 or self.d_model % self.heads:
@@ -111,6 +125,9 @@ class ModelConfig:
         if self.frame_token not in FRAME_TOKENS:
             raise ValueError(f"frame_token must be one of {FRAME_TOKENS}, "
                              f"got {self.frame_token!r}")
+        if self.frame_encoder_dtype not in FRAME_ENCODER_DTYPES:
+            raise ValueError(f"frame_encoder_dtype must be one of {FRAME_ENCODER_DTYPES}, "
+                             f"got {self.frame_encoder_dtype!r}")
 
     @property
     def ff_width(self) -> int:

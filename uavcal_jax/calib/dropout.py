@@ -78,9 +78,14 @@ def attention(query, key, value, mask=None, dropout_rng=None, dropout_rate: floa
               deterministic: bool = True, dtype=None, precision=None):
     """``flax.linen.dot_product_attention`` (per-element dropout on the attention weights,
     ``broadcast_dropout=False``) with :func:`dropout`'s masks; for
-    ``MultiHeadDotProductAttention(attention_fn=...)``. Shapes ``(..., length, heads, d)``."""
+    ``MultiHeadDotProductAttention(attention_fn=...)``. Shapes ``(..., length, heads, d)``.
+
+    The weights and their softmax are computed in the type of ``query``/``key`` (float32
+    in the calibrator), whatever ``dtype`` the attention module computes its projections
+    in: ``dtype`` is accepted for the ``attention_fn`` interface and not used."""
+    del dtype
     weights = nn.dot_product_attention_weights(query, key, mask=mask, deterministic=True,
-                                               dtype=dtype, precision=precision)
+                                               precision=precision)
     if not deterministic and dropout_rate > 0.0:
         weights = dropout(weights, dropout_rate, dropout_rng)
     return jnp.einsum("...hqk,...khd->...qhd", weights, value, precision=precision)

@@ -13,7 +13,8 @@ rad/s, accel xyz in m/s^2, the IMU/body frame).
   learned positional embeddings, and one transformer encoder *shared by every frame* reads
   each frame's tokens; the output row of a learned first token is the frame's token (eq. 6).
   These frame tokens ``(B, n, d)`` plus learned temporal embeddings go through a temporal
-  encoder (eq. 7): ``T_v``.
+  encoder (eq. 7): ``T_v``. ``ModelConfig.frame_encoder_dtype`` sets the operand type of
+  this per-frame part's matrix products (float32, or bfloat16 with float32 sums).
 - **IMU reducer block (IRB).** Each IMU vector ``(C,)`` through ``Linear -> activation ->
   dropout -> dropout -> Linear`` (eq. 8), plus learned positional embeddings, an encoder
   (eq. 9): ``T_i``.
@@ -48,7 +49,7 @@ import jax.numpy as jnp
 
 from uavcal_jax.calib.config import ModelConfig
 from uavcal_jax.calib.dropout import Dropout
-from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encoder
+from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encoder, dot_general_for
 from uavcal_jax.data.color import LUMA_WEIGHTS
 
 __all__ = ["GRAY_WEIGHTS", "NORMALIZATION", "NORMALIZATION_NAMES", "Calibrator", "build_model",
@@ -114,11 +115,19 @@ class FrameEncoder(nn.Module):
     @nn.compact
     def __call__(self, frames, valid=None, *, deterministic: bool = True):
         c = self.config
-        x = jnp.asarray(frames).astype(F32) * F32(c.pixel_scale)
+        dtype = jnp.dtype(c.frame_encoder_dtype)
+        x = jnp.asarray(frames)
+        # Grayscale pixels enter a bfloat16 product unscaled (integers are exact there) and
+        # the float32 product is scaled instead: the same map, one rounding fewer.
+        scale_product = not c.rgb and dtype != F32
+        if not scale_product:
+            x = x.astype(F32) * F32(c.pixel_scale)
         if c.rgb:
             x = ColorCompression(c, name="ccn")(x, valid, not deterministic)
-        tokens = patchify(x, c.patch)  # (N, p, ph*pw)
-        tokens = nn.Dense(c.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
+        tokens = patchify(x, c.patch).astype(dtype)  # (N, p, ph*pw)
+        tokens = nn.Dense(c.d_model, dtype=dtype, param_dtype=F32, kernel_init=LINEAR_INIT,
+                          dot_general=dot_general_for(
+                              dtype, c.pixel_scale if scale_product else None),
                           name="patch_proj")(tokens)
         tokens = ACTIVATION_FNS[c.activation](tokens)
         tokens = Dropout(c.dropout)(tokens, deterministic=deterministic)
@@ -132,8 +141,8 @@ class FrameEncoder(nn.Module):
         if pos.shape[0] != n_tok:
             raise ValueError(f"frames give {tokens.shape[1]} tokens per frame, the model was "
                              f"built for {pos.shape[0]} (another frame or patch size)")
-        out = Encoder(c, name="spatial_encoder")(tokens + pos, deterministic=deterministic,
-                                                 outputs=1)  # only row 0 is read
+        out = Encoder(c, dtype, name="spatial_encoder")(
+            tokens + pos, deterministic=deterministic, outputs=1)  # only row 0 is read
         return out[:, 0]
 
 

@@ -14,6 +14,7 @@ with it the true offset of a prediction is known.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import NamedTuple
@@ -148,9 +149,13 @@ def recorded_offset(root: str | Path) -> np.ndarray | None:
 
 
 def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = "best",
-                      inject_offset=None) -> tuple[dict, SequencePrediction]:
+                      inject_offset=None, frame_encoder_dtype: str | None = None
+                      ) -> tuple[dict, SequencePrediction]:
     """``(summary, prediction)`` of the run folder's ``kind`` checkpoint on the EuRoC folder
     ``sequence``, cut into the run's windows (black frames masked, as in training).
+    ``frame_encoder_dtype``: run the frame encoder's products in this type instead of the
+    run's (:attr:`~uavcal_jax.calib.config.ModelConfig.frame_encoder_dtype`; the parameters
+    are the same).
 
     ``inject_offset``: ``(6,)`` added to the recorded IMU first (only the model's channels are
     used). The true offset is known when ``sequence`` is a simulated recording with an
@@ -166,6 +171,9 @@ def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = 
     channels = config.model.imu_channels
     (part,) = load_windows([sequence], window)
     state, seeds = restore_run(run_dir, [part], kind=kind)
+    if frame_encoder_dtype is not None:
+        model = dataclasses.replace(config.model, frame_encoder_dtype=frame_encoder_dtype)
+        state = state.replace(config=dataclasses.replace(state.config, model=model))
     pick = model_channels(channels, sensor)
     shift = None if inject_offset is None else np.asarray(inject_offset, np.float64)[pick]
     prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
@@ -179,6 +187,7 @@ def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = 
     summary = {
         "run": str(run_dir), "kind": kind, "sequence": str(sequence), "seeds": seeds,
         "sensor": sensor, "channels": list(prediction.channels),
+        "frame_encoder_dtype": state.config.model.frame_encoder_dtype,
         "window_s": window.duration, "stride_s": window.stride,
         "windows": int(prediction.per_window.shape[0]),
         "offset": prediction.median.tolist(),
