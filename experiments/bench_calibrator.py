@@ -16,8 +16,13 @@ and dtypes :func:`uavcal_jax.calib.data.gather` produces (``frames (B, T, 180, 3
   steps (2; 1 at paper size, the peer's too), then the median of the timed steps, each fed
   the state the last one returned; ``train_cpu_s`` is the process CPU time per step (all
   threads), a load-independent measure.
-* ``window_ms``: the deterministic model on ONE 10 s window (batch 1), jitted and compiled
-  apart (``window_compile_s``); the target is at most 100 ms (``window_meets_100ms``).
+* ``window_ms``: the deterministic model (initial weights) on ONE 10 s window (batch 1),
+  jitted and compiled apart (``window_compile_s``); the target is at most 100 ms
+  (``window_meets_100ms``). Inference (window and sequence) is measured before the
+  training step, in a process that has not trained, as ``uavcal calib predict`` runs.
+  ``window_bf16_*``: the same with ``ModelConfig.frame_encoder_dtype="bfloat16"`` (the frame
+  encoder's products on bfloat16 operands with float32 sums; same weights), and
+  ``window_bf16_token_rel_rms``, its frame tokens' relative RMS difference from float32's.
 * ``sequence``: a 60 s sequence, 10 s windows with a 1 s stride (51 windows), from host
   arrays to offsets: ``reuse_s`` encodes each frame once
   (:func:`~uavcal_jax.calib.inference.encode_frames`, chunks of 64) and runs the rest of the
@@ -46,6 +51,12 @@ backend has them (``None`` on XLA:CPU). The peer's ``peak_rss_mib`` is its ``VmH
 from ``/proc`` (its own getrusage figure inherits ours across fork/exec: see
 :func:`run_peer`).
 
+Allocator: the benchmark runs under :func:`uavcal_jax.allocator.keep_freed_memory`, as the
+``uavcal`` command does (``allocator_keeps_freed_memory``; ``UAVCAL_KEEP_FREED_MEMORY=0``
+turns it off). ``peer`` is the peer as its README runs it (glibc's default allocator);
+``peer_same_allocator`` runs it again under our setting, with its own ``*_over_ours`` ratios:
+PyTorch on CPU mallocs and frees its large tensors every step as well, and gains from it too.
+
 Threads: XLA:CPU sizes its thread pool by the CPUs this process may run on (its affinity),
 not by a setting; the peer gets ``torch.set_num_threads(--threads)``, by default that same
 count. To compare on fewer cores, run the whole benchmark under ``taskset -c 0-1`` (the
@@ -63,6 +74,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -76,6 +88,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from uavcal_jax import allocator
+from uavcal_jax.allocator import keep_freed_memory
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.calib import inference
 from uavcal_jax.calib.config import CalibConfig, with_overrides
@@ -99,6 +113,10 @@ SEEDS_K = 8
 WINDOW_TARGET_MS = 100.0
 PEER_TIMEOUT_S = 3600.0
 MIB = 2.0 ** 20
+#: ``python -c PEER_PRELUDE allocator.py script args...``: apply the allocator setting, then
+#: run the peer script as ``__main__`` with its own arguments.
+PEER_PRELUDE = ("import runpy, sys; runpy.run_path(sys.argv[1])['keep_freed_memory'](); "
+                "sys.argv = sys.argv[2:]; runpy.run_path(sys.argv[0], run_name='__main__')")
 
 
 def preset_config(batch: int, d_model: int) -> CalibConfig:
@@ -180,10 +198,8 @@ def _progress(quiet: bool, text: str) -> None:
         print(text, file=sys.stderr, flush=True)
 
 
-def bench_training(config: CalibConfig, batch: dict, repeats: int,
-                   warmup: int) -> tuple[dict, object]:
-    """Compile and time :func:`train_step` on ``batch``; returns the figures and the
-    initial state (its variables serve inference)."""
+def bench_training(config: CalibConfig, batch: dict, repeats: int, warmup: int) -> dict:
+    """Compile and time :func:`train_step` on ``batch``; returns the figures."""
     state = create_train_state(config, jax.random.key(0), batch)
     dev_batch = jax.device_put(batch)
     keys = jax.random.split(jax.random.key(1), repeats + warmup)
@@ -205,12 +221,14 @@ def bench_training(config: CalibConfig, batch: dict, repeats: int,
     return {"params": _param_count(state.params), "train_compile_s": round(compile_s, 2),
             "train_step_s": round(_median(wall), 4), "train_step_s_runs": _rounded(wall),
             "train_cpu_s": round(_median(cpu), 4), "train_xla_temp_mib": _xla_temp_mib(step),
-            "train_loss_first_last": _rounded([losses[0], losses[-1]])}, state
+            "train_loss_first_last": _rounded([losses[0], losses[-1]])}
 
 
-def bench_window(model: Calibrator, variables, window: dict, repeats: int) -> tuple[dict, object]:
-    """Compile and time the deterministic model on one window; returns the figures and the
-    compiled function ``(variables, frames, imu, mask) -> offsets``."""
+def bench_window(model: Calibrator, variables, window: dict, repeats: int,
+                 name: str = "window") -> tuple[dict, object]:
+    """Compile and time the deterministic model on one window; returns the figures (keys
+    starting with ``name``) and the compiled function ``(variables, frames, imu, mask) ->
+    offsets``."""
     apply = jax.jit(lambda v, f, i, m: model.apply(v, f, i, m))
     args = (variables, jax.device_put(window["frames"]), jax.device_put(window["imu"]),
             jax.device_put(window["mask"]))
@@ -219,11 +237,25 @@ def bench_window(model: Calibrator, variables, window: dict, repeats: int) -> tu
     compile_s = time.perf_counter() - t0
     wall, cpu = _timed(lambda: jax.block_until_ready(compiled(*args)), repeats, warmup=2)
     ms = 1e3 * _median(wall)
-    return {"window_compile_s": round(compile_s, 2), "window_ms": round(ms, 2),
-            "window_ms_min": round(1e3 * min(wall), 2),
-            "window_cpu_ms": round(1e3 * _median(cpu), 2),
-            "window_meets_100ms": bool(ms <= WINDOW_TARGET_MS),
-            "window_xla_temp_mib": _xla_temp_mib(compiled)}, compiled
+    return {f"{name}_compile_s": round(compile_s, 2), f"{name}_ms": round(ms, 2),
+            f"{name}_ms_min": round(1e3 * min(wall), 2),
+            f"{name}_cpu_ms": round(1e3 * _median(cpu), 2),
+            f"{name}_meets_100ms": bool(ms <= WINDOW_TARGET_MS),
+            f"{name}_xla_temp_mib": _xla_temp_mib(compiled)}, compiled
+
+
+def bench_window_bf16(model: Calibrator, variables, window: dict, repeats: int) -> dict:
+    """:func:`bench_window` with ``frame_encoder_dtype="bfloat16"`` (same variables), and
+    ``window_bf16_token_rel_rms``: the RMS of its frame tokens' difference from float32's over
+    the float32 tokens' RMS, on this window's frames."""
+    half = Calibrator(dataclasses.replace(model.config, frame_encoder_dtype="bfloat16"))
+    out, _ = bench_window(half, variables, window, repeats, name="window_bf16")
+    frames = window["frames"][0]
+    ref, got = (np.asarray(jax.jit(lambda v, f, m=m: m.apply(
+        v, f, method=Calibrator.encode_frames))(variables, frames)) for m in (model, half))
+    out["window_bf16_token_rel_rms"] = float(np.sqrt(np.mean((got - ref) ** 2)
+                                                     / np.mean(ref ** 2)))
+    return out
 
 
 def bench_sequence(model: Calibrator, variables, window_fn, rng: np.random.Generator,
@@ -307,8 +339,14 @@ def _vm_hwm_mib(pid: int) -> float | None:
 
 
 def run_peer(python: Path, script: Path, preset: str, threads: int, warmup: int,
-             train_steps: int, infer_runs: int) -> tuple[dict | None, str | None]:
+             train_steps: int, infer_runs: int, keep_freed: bool
+             ) -> tuple[dict | None, str | None]:
     """The peer's JSON line for ``preset``, or ``(None, reason)``.
+
+    ``keep_freed``: start the peer under the allocator setting the ``uavcal`` command runs
+    with (:func:`uavcal_jax.allocator.keep_freed_memory`, read from its file by
+    :data:`PEER_PRELUDE`: the peer's interpreter has no uavcal_jax), so both sides pay the
+    same page faults; ``False``: as its README runs it.
 
     The peer's own ``peak_rss_mib`` (getrusage) is wrong when it is started from this
     process: Linux carries the parent's high-water mark across fork/exec, so it reports at
@@ -319,7 +357,8 @@ def run_peer(python: Path, script: Path, preset: str, threads: int, warmup: int,
         return None, f"peer interpreter {python} not found"
     if not Path(script).exists():
         return None, f"peer script {script} not found"
-    cmd = [str(python), str(script), "--bench", "--threads", str(threads),
+    prelude = ["-c", PEER_PRELUDE, allocator.__file__] if keep_freed else []
+    cmd = [str(python), *prelude, str(script), "--bench", "--threads", str(threads),
            "--warmup-steps", str(warmup), "--train-steps", str(train_steps),
            "--warmup-infer", "2", "--infer-runs", str(infer_runs)]
     if preset == "small":
@@ -366,34 +405,44 @@ def bench_preset(name: str, args, rng: np.random.Generator, quiet: bool) -> dict
                             "d_model": d_model, "heads": config.model.heads,
                             "layers": config.model.layers, "patch": list(config.model.patch),
                             "frame_token": config.model.frame_token}}
-    batch = synthetic_batch(rng, batch_size, per_window, hw)
-    _progress(quiet, f"[{name}] training step ...")
-    train, state = bench_training(config, batch, repeats, warmup)
-    out.update(train)
-    del batch
+    # inference first, in a process that has not trained yet, as `uavcal calib predict` runs
     _progress(quiet, f"[{name}] one window ...")
-    model, variables = state.model, state.variables()
     window = synthetic_batch(rng, 1, per_window, hw)
+    state = create_train_state(config, jax.random.key(0), window)
+    model, variables = state.model, state.variables()
     win, window_fn = bench_window(model, variables, window, args.repeats)
     out.update(win)
+    out.update(bench_window_bf16(model, variables, window, args.repeats))
     _progress(quiet, f"[{name}] 60 s sequence ...")
     out["sequence"] = bench_sequence(model, variables, window_fn, rng, per_window, hw,
                                      repeats)
+    del state, window_fn
+    batch = synthetic_batch(rng, batch_size, per_window, hw)
+    _progress(quiet, f"[{name}] training step ...")
+    out.update(bench_training(config, batch, repeats, warmup))
+    del batch
     out["peak_rss_mib_after"] = _peak_rss_mib()
     out["device_memory"] = _device_memory()
-    if args.no_peer:
-        out["peer"], out["peer_error"] = None, "skipped (--no-peer)"
-    else:
-        _progress(quiet, f"[{name}] PyTorch peer ...")
-        out["peer"], out["peer_error"] = run_peer(args.peer_python, args.peer_script, name,
-                                                  args.threads, warmup, repeats, args.repeats)
-    peer = out["peer"]
-    out["peer_params_minus_ours"] = None if peer is None else peer["params"] - out["params"]
-    out["peer_step_over_ours"] = (None if peer is None else
-                                  round(peer["train_step_s_median"] / out["train_step_s"], 2))
-    out["peer_window_over_ours"] = (
-        None if peer is None else round(1e3 * peer["infer_window_s_median"] / out["window_ms"],
-                                        2))
+    # the peer as its README runs it, then (when this process keeps freed memory) under the
+    # same allocator setting as ours
+    for key, same in (("peer", False), ("peer_same_allocator", True)):
+        if args.no_peer:
+            out[key], out[f"{key}_error"] = None, "skipped (--no-peer)"
+        elif same and not args.keep_freed_memory:
+            out[key], out[f"{key}_error"] = None, "this run keeps glibc's default allocator"
+        else:
+            _progress(quiet, f"[{name}] PyTorch peer{' (same allocator)' if same else ''} ...")
+            out[key], out[f"{key}_error"] = run_peer(
+                args.peer_python, args.peer_script, name, args.threads, warmup, repeats,
+                args.repeats, keep_freed=same)
+        peer = out[key]
+        out[f"{key}_step_over_ours"] = (
+            None if peer is None else round(peer["train_step_s_median"] / out["train_step_s"], 2))
+        out[f"{key}_window_over_ours"] = (
+            None if peer is None else round(1e3 * peer["infer_window_s_median"]
+                                            / out["window_ms"], 2))
+    out["peer_params_minus_ours"] = (None if out["peer"] is None
+                                     else out["peer"]["params"] - out["params"])
     return out
 
 
@@ -403,6 +452,7 @@ def _fmt(value, spec: str) -> str:
 
 def print_table(presets: dict, seeds: dict) -> None:
     head = (f"{'preset':7}{'params':>11}{'step s':>9}{'compile s':>10}{'window ms':>10}"
+            f"{'bf16 ms':>8}"
             f"{'60s reuse s':>12}{'60s full s':>11}{'speedup':>8}{'peer step':>10}"
             f"{'peer win':>9}{'RSS MiB':>9}")
     print(head)
@@ -410,7 +460,8 @@ def print_table(presets: dict, seeds: dict) -> None:
         peer = r["peer"] or {}
         win = peer.get("infer_window_s_median")
         print(f"{name:7}{r['params']:>11,}{r['train_step_s']:>9.3f}{r['train_compile_s']:>10.1f}"
-              f"{r['window_ms']:>10.1f}{r['sequence']['reuse_s']:>12.3f}"
+              f"{r['window_ms']:>10.1f}{r['window_bf16_ms']:>8.1f}"
+              f"{r['sequence']['reuse_s']:>12.3f}"
               f"{r['sequence']['full_s']:>11.3f}{r['sequence']['speedup']:>8.1f}"
               f"{_fmt(peer.get('train_step_s_median'), '10.3f'):>10}"
               f"{_fmt(None if win is None else 1e3 * win, '9.1f'):>9}"
@@ -421,6 +472,12 @@ def print_table(presets: dict, seeds: dict) -> None:
             print(f"  {name}: peer/ours step {r['peer_step_over_ours']}x, "
                   f"window {r['peer_window_over_ours']}x (peer {peer['params']:,} params, "
                   f"peak RSS {peer['peak_rss_mib']:.0f} MiB)")
+        same = r["peer_same_allocator"]
+        if same is not None:
+            print(f"  {name}, peer under our allocator setting: step "
+                  f"{same['train_step_s_median']:.3f} s ({r['peer_same_allocator_step_over_ours']}x"
+                  f"), window {1e3 * same['infer_window_s_median']:.1f} ms "
+                  f"({r['peer_same_allocator_window_over_ours']}x)")
     s = seeds
     print(f"small, K={s['k']} vmapped seeds: {s['step_s']:.3f} s per step = "
           f"{s['per_seed_s']:.3f} s per seed vs {s['one_seed_s']:.3f} s for one seed: "
@@ -449,6 +506,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json-only", action="store_true",
                     help="print only the JSON line (no progress, no table)")
     args = ap.parse_args(argv)
+    args.keep_freed_memory = keep_freed_memory()  # as the uavcal command runs
 
     cpus = len(os.sched_getaffinity(0))
     summary: dict = {
@@ -462,6 +520,7 @@ def main(argv=None) -> int:
                          "xla_temp: Compiled.memory_analysis(); device_memory: "
                          "Device.memory_stats() (None on XLA:CPU)",
         "window_target_ms": WINDOW_TARGET_MS,
+        "allocator_keeps_freed_memory": args.keep_freed_memory,
     }
     load_before = os.getloadavg()[0]
     rng = np.random.default_rng(0)
@@ -479,9 +538,13 @@ def main(argv=None) -> int:
     summary.update({
         "preset": main_name, "params": top["params"], "train_step_s": top["train_step_s"],
         "window_ms": top["window_ms"], "window_meets_100ms": top["window_meets_100ms"],
+        "window_bf16_ms": top["window_bf16_ms"],
+        "window_bf16_meets_100ms": top["window_bf16_meets_100ms"],
         "sequence_speedup": top["sequence"]["speedup"],
         "peer_step_over_ours": top["peer_step_over_ours"],
         "peer_window_over_ours": top["peer_window_over_ours"],
+        "peer_same_allocator_step_over_ours": top["peer_same_allocator_step_over_ours"],
+        "peer_same_allocator_window_over_ours": top["peer_same_allocator_window_over_ours"],
         "seeds_per_seed_ratio": seeds["per_seed_ratio"],
         "peak_rss_mib": _peak_rss_mib(),
         "load_avg_1min": [load_before, os.getloadavg()[0]],
