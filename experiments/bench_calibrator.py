@@ -89,7 +89,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax import allocator
-from uavcal_jax.allocator import keep_freed_memory
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.calib import inference
 from uavcal_jax.calib.config import CalibConfig, with_overrides
@@ -251,9 +250,8 @@ def bench_window_bf16(model: Calibrator, variables, window: dict, repeats: int) 
     the float32 tokens' RMS, on this window's frames."""
     half = Calibrator(dataclasses.replace(model.config, frame_encoder_dtype="bfloat16"))
     out, _ = bench_window(half, variables, window, repeats, name="window_bf16")
-    frames = window["frames"][0]
-    ref, got = (np.asarray(jax.jit(lambda v, f, m=m: m.apply(
-        v, f, method=Calibrator.encode_frames))(variables, frames)) for m in (model, half))
+    ref, got = (np.asarray(inference.encode_frames(m, variables, window["frames"][0]))
+                for m in (model, half))
     out["window_bf16_token_rel_rms"] = float(np.sqrt(np.mean((got - ref) ** 2)
                                                      / np.mean(ref ** 2)))
     return out
@@ -511,7 +509,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json-only", action="store_true",
                     help="print only the JSON line (no progress, no table)")
     args = ap.parse_args(argv)
-    args.keep_freed_memory = keep_freed_memory()  # as the uavcal command runs
+    args.keep_freed_memory = allocator.keep_freed_memory()  # as the uavcal command runs
 
     cpus = len(os.sched_getaffinity(0))
     summary: dict = {
