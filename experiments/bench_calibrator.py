@@ -91,7 +91,7 @@ import numpy as np
 from uavcal_jax import allocator
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.calib import inference
-from uavcal_jax.calib.config import CalibConfig, with_overrides
+from uavcal_jax.calib.config import CalibConfig
 from uavcal_jax.calib.model import Calibrator
 from uavcal_jax.calib.train import (
     create_train_state,
@@ -99,6 +99,7 @@ from uavcal_jax.calib.train import (
     train_step,
     train_step_seeds,
 )
+from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.windows import WindowConfig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -120,7 +121,7 @@ PEER_PRELUDE = ("import runpy, sys; runpy.run_path(sys.argv[1])['keep_freed_memo
 
 def preset_config(batch: int, d_model: int) -> CalibConfig:
     """The default configuration with the preset's batch size and width."""
-    return with_overrides(CalibConfig(), {"train.batch_size": batch, "model.d_model": d_model})
+    return apply_overrides(CalibConfig(), {"train.batch_size": batch, "model.d_model": d_model})
 
 
 def synthetic_imu(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:

@@ -99,10 +99,11 @@ from _calib_common import (  # the script's folder is first on sys.path
 )
 
 from uavcal_jax.argtypes import positive_int, print_json
-from uavcal_jax.calib.config import PROTOCOLS, config_to_dict
+from uavcal_jax.calib.config import PROTOCOLS
 from uavcal_jax.calib.data import load_windows
 from uavcal_jax.calib.protocols import mean_std, trial_sides
 from uavcal_jax.calib.sim_sets import FAMILIES
+from uavcal_jax.config import to_dict
 from uavcal_jax.xla_cache import enable_compilation_cache
 
 
@@ -242,7 +243,7 @@ def main() -> None:
     enable_compilation_cache()
     base, _, base_window = resolve(args, protocol=args.protocol, seeds=args.seeds,
                                    epochs=args.max_epochs)
-    base_dict = {**config_to_dict(base), "window": dataclasses.asdict(base_window)}
+    base_dict = {**to_dict(base), "window": dataclasses.asdict(base_window)}
     names = pick_sequences(args.family, args.sequences)
     if not val_names & set(names) or not set(names) - val_names:
         ap.error(f"the {args.family} sequences {names} leave no held-out ({sorted(val_names)}) "

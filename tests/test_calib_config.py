@@ -8,14 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from uavcal_jax.calib.config import (
-    CalibConfig,
-    ModelConfig,
-    config_from_dict,
-    config_to_dict,
-    with_overrides,
-)
+from uavcal_jax.calib.config import CalibConfig, ModelConfig
 from uavcal_jax.calib.model import Calibrator
+from uavcal_jax.config import apply_overrides, from_dict, to_dict
 from uavcal_jax.data.windows import WindowConfig
 
 PEER_PARAMS = 9_700_614  # peer_calibrator_torch.py --bench: d 256, 200 frames of 320x180
@@ -32,20 +27,20 @@ def test_defaults_are_the_papers():
 
 
 def test_overrides_parse_to_field_types():
-    c = with_overrides(CalibConfig(), ["model.d_model=128", "model.patch=32x48",
+    c = apply_overrides(CalibConfig(), ["model.d_model=128", "model.patch=32x48",
                                        "model.use_video=false", "model.ff_dim=none",
                                        "loss.tau=0.2", "injection.protocol=physical",
                                        "train.seeds=4"])
     assert c.model.d_model == 128 and c.model.patch == (32, 48) and not c.model.use_video
     assert c.model.ff_dim is None and c.loss.tau == 0.2 and c.train.seeds == 4
     assert c.injection.protocol == "physical"
-    assert with_overrides(c, {"model.ff_dim": 64}).model.ff_width == 64
+    assert apply_overrides(c, {"model.ff_dim": 64}).model.ff_width == 64
     assert CalibConfig().model.d_model == 256  # the original is untouched
 
 
 def test_unknown_key_names_it_and_lists_valid_keys():
     with pytest.raises(KeyError) as err:
-        with_overrides(CalibConfig(), ["model.width=3"])
+        apply_overrides(CalibConfig(), ["model.width=3"])
     msg = str(err.value)
     assert "'model.width'" in msg and "model.d_model" in msg and "train.learning_rate" in msg
 
@@ -54,16 +49,16 @@ def test_unknown_key_names_it_and_lists_valid_keys():
                                       "model.heads=3", "injection.protocol=bogus", "nokey"])
 def test_bad_values_raise(override):
     with pytest.raises(ValueError):
-        with_overrides(CalibConfig(), [override])
+        apply_overrides(CalibConfig(), [override])
 
 
 def test_dict_round_trip():
-    c = with_overrides(CalibConfig(), ["model.patch=16,16", "loss.sign_term=tanh"])
-    d = config_to_dict(c)
+    c = apply_overrides(CalibConfig(), ["model.patch=16,16", "loss.sign_term=tanh"])
+    d = to_dict(c)
     assert d["model"]["patch"] == (16, 16)
-    assert config_from_dict(CalibConfig, d) == c
+    assert from_dict(CalibConfig, d) == c
     with pytest.raises(KeyError, match="model.nope"):
-        config_from_dict(CalibConfig, {"model": {"nope": 1}})
+        from_dict(CalibConfig, {"model": {"nope": 1}})
 
 
 def _param_count(model_config: ModelConfig) -> int:

@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 from uavcal_jax.calib.checkpoint import RunCheckpoints
-from uavcal_jax.calib.config import CalibConfig, with_overrides
+from uavcal_jax.calib.config import CalibConfig
 from uavcal_jax.calib.data import load_windows, split_windows
 from uavcal_jax.calib.loop import LoopConfig, epoch_order, fit, restore_run
+from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataError
 from uavcal_jax.sim.config import SimConfig
@@ -26,7 +27,7 @@ from uavcal_jax.sim.simulate import simulate
 
 TINY = ["model.d_model=16", "model.layers=1", "model.heads=2", "model.patch=16,16",
         "train.batch_size=4", "train.learning_rate=1e-3", "train.epochs=3"]
-CONFIG = with_overrides(CalibConfig(), TINY)
+CONFIG = apply_overrides(CalibConfig(), TINY)
 WINDOW = WindowConfig(duration=2.0, stride=1.0, size=(64, 36))
 
 
@@ -117,7 +118,7 @@ def _one_line_error(excinfo, *needles):
 
 def test_mismatched_config_or_version_or_damage_is_one_line(windows, full_run, tmp_path):
     run_dir, _ = full_run
-    other = with_overrides(CONFIG, ["model.d_model=32"])
+    other = apply_overrides(CONFIG, ["model.d_model=32"])
     with pytest.raises(DataError) as e:
         fit(other, *windows, run_dir, progress=False, resume=True)
     _one_line_error(e, run_dir, "model.d_model", "16", "32")

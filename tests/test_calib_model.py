@@ -9,12 +9,13 @@ import numpy as np
 import pytest
 
 from uavcal_jax.calib import inference
-from uavcal_jax.calib.config import CalibConfig, with_overrides
+from uavcal_jax.calib.config import CalibConfig
 from uavcal_jax.calib.model import GRAY_WEIGHTS, NORMALIZATION, Calibrator, patchify
 from uavcal_jax.calib.train import create_train_state, train_step
+from uavcal_jax.config import apply_overrides
 
 # The tiny configuration of tests/test_calib_train.py: its initialiser compiles once for both.
-CONFIG = with_overrides(CalibConfig(), [
+CONFIG = apply_overrides(CalibConfig(), [
     "model.d_model=32", "model.layers=1", "model.heads=2", "model.patch=16,16",
     "train.batch_size=4", "train.learning_rate=1e-3"])
 TINY = CONFIG.model

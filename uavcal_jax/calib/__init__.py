@@ -29,9 +29,6 @@ from uavcal_jax.calib.config import (
     LossConfig,
     ModelConfig,
     TrainConfig,
-    config_from_dict,
-    config_to_dict,
-    with_overrides,
 )
 from uavcal_jax.calib.inject import (
     ImuStats,
@@ -68,8 +65,6 @@ __all__ = [
     "build_model",
     "calibration_loss",
     "calibration_metrics",
-    "config_from_dict",
-    "config_to_dict",
     "create_train_state",
     "create_train_states",
     "data_parallel",
@@ -92,5 +87,4 @@ __all__ = [
     "train_step_seeds",
     "training_offsets",
     "validation_offsets",
-    "with_overrides",
 ]

@@ -5,15 +5,11 @@ says otherwise. The window geometry (10 s windows, 1 s stride, 320x180 frames, g
 decoding) is *not* repeated here: it lives in :class:`uavcal_jax.data.windows.WindowConfig`,
 and the model reads frame size and frames per window from the arrays it is given.
 
-:func:`with_overrides` applies ``"section.field=value"`` strings (the CLI's ``--set``).
+Overrides, JSON and presets: :mod:`uavcal_jax.config` and :mod:`uavcal_jax.calib.protocols`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import types
-import typing
-from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 __all__ = [
@@ -28,9 +24,6 @@ __all__ = [
     "LossConfig",
     "ModelConfig",
     "TrainConfig",
-    "config_from_dict",
-    "config_to_dict",
-    "with_overrides",
 ]
 
 ACTIVATIONS = ("relu", "gelu")
@@ -247,109 +240,3 @@ class CalibConfig:
     injection: InjectionConfig = field(default_factory=InjectionConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
-
-def config_to_dict(config) -> dict:
-    """A JSON-ready dict of a (nested) config dataclass; tuples become lists."""
-    return dataclasses.asdict(config)
-
-
-def config_from_dict(cls, data: Mapping):
-    """Rebuild ``cls`` from :func:`config_to_dict` output; unknown keys raise ``KeyError``."""
-    return _build(cls, data, prefix="")
-
-
-def _build(cls, data: Mapping, prefix: str):
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise KeyError(f"unknown config key {prefix + unknown[0]!r}; valid keys: "
-                       f"{', '.join(prefix + n for n in sorted(names))}")
-    kwargs = {}
-    for name, value in data.items():
-        hint = hints[name]
-        if dataclasses.is_dataclass(hint):
-            kwargs[name] = _build(hint, value, prefix=f"{prefix}{name}.")
-        elif isinstance(value, list):
-            kwargs[name] = tuple(value)
-        else:
-            kwargs[name] = value
-    return cls(**kwargs)
-
-
-def _valid_keys(cls, prefix: str = "") -> list[str]:
-    hints = typing.get_type_hints(cls)
-    keys = []
-    for f in dataclasses.fields(cls):
-        if dataclasses.is_dataclass(hints[f.name]):
-            keys += _valid_keys(hints[f.name], f"{prefix}{f.name}.")
-        else:
-            keys.append(prefix + f.name)
-    return keys
-
-
-def _parse(text: str, hint, key: str):
-    """``text`` converted to the field type ``hint`` (bool, int, float, str, tuple, Optional)."""
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        if text.strip().lower() in ("none", "null") and type(None) in args:
-            return None
-        (inner,) = [a for a in args if a is not type(None)]
-        return _parse(text, inner, key)
-    if origin is tuple:
-        parts = [p for p in text.replace("x", ",").split(",") if p.strip()]
-        inner = args[0] if args else str
-        if args and args[-1] is not Ellipsis and len(parts) != len(args):
-            raise ValueError(f"{key}: expected {len(args)} comma-separated values, got {text!r}")
-        return tuple(_parse(p.strip(), inner, key) for p in parts)
-    if hint is bool:
-        low = text.strip().lower()
-        if low in ("1", "true", "yes", "on"):
-            return True
-        if low in ("0", "false", "no", "off"):
-            return False
-        raise ValueError(f"{key}: expected a boolean (true/false), got {text!r}")
-    if hint in (int, float):
-        try:
-            return hint(text)
-        except ValueError:
-            raise ValueError(f"{key}: expected {hint.__name__}, got {text!r}") from None
-    return text
-
-
-def with_overrides(config, overrides: Iterable[str] | Mapping[str, object]):
-    """``config`` with ``"section.field=value"`` overrides applied (values parsed to the
-    field's type; ``None``/``none`` for optional fields; tuples as ``64,64`` or ``64x64``).
-
-    A mapping may give already-typed values. Dataclass validation runs on the result.
-
-    Raises:
-        KeyError: an unknown key; the message names it and lists every valid key.
-        ValueError: a value that does not parse, or fails the config's validation.
-    """
-    items = overrides.items() if isinstance(overrides, Mapping) else (
-        _split(s) for s in overrides)
-    valid = _valid_keys(type(config))
-    for key, value in items:
-        if key not in valid:
-            raise KeyError(f"unknown config key {key!r}; valid keys: {', '.join(valid)}")
-        config = _replace_path(config, key.split("."), value, key)
-    return config
-
-
-def _split(text: str) -> tuple[str, str]:
-    if "=" not in text:
-        raise ValueError(f"override {text!r} is not key=value")
-    key, value = text.split("=", 1)
-    return key.strip(), value.strip()
-
-
-def _replace_path(obj, path: list[str], value, key: str):
-    name = path[0]
-    if len(path) > 1:
-        return dataclasses.replace(obj, **{name: _replace_path(getattr(obj, name), path[1:],
-                                                                value, key)})
-    if isinstance(value, str):
-        value = _parse(value, typing.get_type_hints(type(obj))[name], key)
-    return dataclasses.replace(obj, **{name: value})

@@ -35,12 +35,7 @@ import numpy as np
 
 from uavcal_jax.calib.baselines import mean_offset
 from uavcal_jax.calib.checkpoint import RunCheckpoints
-from uavcal_jax.calib.config import (
-    CalibConfig,
-    config_from_dict,
-    config_to_dict,
-    with_overrides,
-)
+from uavcal_jax.calib.config import CalibConfig
 from uavcal_jax.calib.data import Windows, as_windows, gather, training_statistics
 from uavcal_jax.calib.inject import ImuStats, training_offsets, validation_offsets
 from uavcal_jax.calib.metrics import calibration_metrics, metrics_from_sums
@@ -55,6 +50,7 @@ from uavcal_jax.calib.train import (
     train_step,
     train_step_seeds,
 )
+from uavcal_jax.config import apply_overrides, from_dict, to_dict
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress as progress_bar
@@ -124,7 +120,7 @@ def resolved_config(config: CalibConfig, loop: LoopConfig, windows: list[Windows
     ws = windows[0].windows
     window = {k: (list(v) if isinstance(v, tuple) else v)
               for k, v in dataclasses.asdict(ws.config).items() if k != "workers"}
-    return {"calib": config_to_dict(config), "loop": dataclasses.asdict(loop),
+    return {"calib": to_dict(config), "loop": dataclasses.asdict(loop),
             "window": window, "frames_per_window": ws.frames_per_window,
             "frame_shape": list(ws.frames.shape[1:])}
 
@@ -245,7 +241,7 @@ def read_run_config(run_dir: str | Path) -> tuple[CalibConfig, LoopConfig, Windo
         raise DataError("not a calib run folder (no config.json)", run_dir)
     try:
         saved = json.loads(path.read_text())
-        config = config_from_dict(CalibConfig, saved["calib"])
+        config = from_dict(CalibConfig, saved["calib"])
         loop = LoopConfig(**saved["loop"])
         window = WindowConfig(**{k: tuple(v) if isinstance(v, list) else v
                                  for k, v in saved["window"].items()})
@@ -334,7 +330,7 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
             ``resume``, or a checkpoint written with another configuration or version.
     """
     seeds = config.train.seeds if seeds is None else int(seeds)
-    config = with_overrides(config, {"train.seeds": seeds})
+    config = apply_overrides(config, {"train.seeds": seeds})
     train, val = as_windows(train_windows), as_windows(val_windows)
     run_dir = Path(run_dir)
     n = int(sum(len(p.indices) for p in train))

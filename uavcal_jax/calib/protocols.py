@@ -20,9 +20,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from uavcal_jax.calib.config import CalibConfig, with_overrides
+from uavcal_jax.calib.config import CalibConfig
 from uavcal_jax.calib.data import Windows, kfold_windows, leave_one_out, split_windows
 from uavcal_jax.calib.loop import LoopConfig
+from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.windows import WindowConfig
 
 __all__ = ["PRESETS", "SECTIONS", "TRIAL_FORMAT", "mean_std", "resolve_configs",
@@ -49,7 +50,7 @@ PRESETS: dict[str, tuple[str, ...]] = {
 
 def _apply(config, sets: list[str], prefix: str):
     try:
-        return with_overrides(config, sets)
+        return apply_overrides(config, sets)
     except KeyError as err:
         text = str(err.args[0])
         key = text.split("'")[1] if "'" in text else text
