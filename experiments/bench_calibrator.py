@@ -87,6 +87,12 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _bench import (  # the script's folder is first on sys.path
+    median,
+    time_calls,
+    time_compile,
+    time_once,
+)
 
 from uavcal_jax import allocator
 from uavcal_jax.argtypes import positive_int, print_json
@@ -146,24 +152,6 @@ def sequence_windows(n_frames: int, per_window: int, stride: int) -> np.ndarray:
     return (starts[:, None] + np.arange(per_window)[None, :]).astype(np.int32)
 
 
-def _timed(fn, repeats: int, warmup: int = 1) -> tuple[list[float], list[float]]:
-    """Wall-clock and process-CPU seconds of ``repeats`` calls of ``fn()`` (which must block
-    until its result is ready) after ``warmup`` untimed ones."""
-    for _ in range(warmup):
-        fn()
-    wall, cpu = [], []
-    for _ in range(repeats):
-        t, c = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
-    return wall, cpu
-
-
-def _median(values) -> float:
-    return float(np.median(np.asarray(values, np.float64)))
-
-
 def _rounded(values, digits: int = 4) -> list[float]:
     return [round(float(v), digits) for v in values]
 
@@ -203,9 +191,7 @@ def bench_training(config: CalibConfig, batch: dict, repeats: int, warmup: int) 
     state = create_train_state(config, jax.random.key(0), batch)
     dev_batch = jax.device_put(batch)
     keys = jax.random.split(jax.random.key(1), repeats + warmup)
-    t0 = time.perf_counter()
-    step = train_step.lower(state, dev_batch, keys[0]).compile()
-    compile_s = time.perf_counter() - t0
+    step, compile_s = time_compile(train_step, state, dev_batch, keys[0])
     holder = {"state": state, "i": 0}
     losses = []
 
@@ -215,12 +201,13 @@ def bench_training(config: CalibConfig, batch: dict, repeats: int, warmup: int) 
         holder["state"], holder["i"] = s, holder["i"] + 1
         losses.append(float(metrics["loss"]))
 
-    wall, cpu = _timed(one, repeats, warmup)
+    timed = time_calls(one, repeats=repeats, warmup=warmup)
+    wall, cpu = timed.wall_s, timed.cpu_s
     if not np.all(np.isfinite(losses)):
         raise RuntimeError(f"non-finite training loss: {losses}")
     return {"params": _param_count(state.params), "train_compile_s": round(compile_s, 2),
-            "train_step_s": round(_median(wall), 4), "train_step_s_runs": _rounded(wall),
-            "train_cpu_s": round(_median(cpu), 4), "train_xla_temp_mib": _xla_temp_mib(step),
+            "train_step_s": round(median(wall), 4), "train_step_s_runs": _rounded(wall),
+            "train_cpu_s": round(median(cpu), 4), "train_xla_temp_mib": _xla_temp_mib(step),
             "train_loss_first_last": _rounded([losses[0], losses[-1]])}
 
 
@@ -232,15 +219,14 @@ def bench_window(model: Calibrator, variables, window: dict, repeats: int,
     apply = jax.jit(lambda v, f, i, m: model.apply(v, f, i, m))
     args = (variables, jax.device_put(window["frames"]), jax.device_put(window["imu"]),
             jax.device_put(window["mask"]))
-    t0 = time.perf_counter()
-    compiled = apply.lower(*args).compile()
-    compile_s = time.perf_counter() - t0
-    wall, cpu = _timed(lambda: jax.block_until_ready(compiled(*args)), repeats, warmup=2)
-    ms = 1e3 * _median(wall)
+    compiled, compile_s = time_compile(apply, *args)
+    timed = time_calls(lambda: compiled(*args), repeats=repeats, warmup=2)
+    wall, cpu = timed.wall_s, timed.cpu_s
+    ms = 1e3 * median(wall)
     return {f"{name}_compile_s": round(compile_s, 2), f"{name}_ms": round(ms, 2),
             f"{name}_ms_min": round(1e3 * min(wall), 2),
             f"{name}_ms_runs": _rounded([1e3 * t for t in wall], 1),
-            f"{name}_cpu_ms": round(1e3 * _median(cpu), 2),
+            f"{name}_cpu_ms": round(1e3 * median(cpu), 2),
             f"{name}_meets_100ms": bool(ms <= WINDOW_TARGET_MS),
             f"{name}_xla_temp_mib": _xla_temp_mib(compiled)}, compiled
 
@@ -285,18 +271,17 @@ def bench_sequence(model: Calibrator, variables, window_fn, rng: np.random.Gener
                for w in range(index.shape[0])]
         return jax.block_until_ready(jnp.concatenate(out))
 
-    t0 = time.perf_counter()
-    reused = reuse()  # compiles the frame encoder (one chunk shape) and the window predictor
-    first_s = time.perf_counter() - t0
-    reuse_wall, _ = _timed(reuse, repeats, warmup=0)
+    # the first call compiles the frame encoder (one chunk shape) and the window predictor
+    reused, first_s = time_once(reuse)
+    reuse_wall = time_calls(reuse, repeats=repeats).wall_s
     diff = float(np.max(np.abs(np.asarray(reused) - np.asarray(full()))))  # also the warm-up
-    full_wall, _ = _timed(full, repeats, warmup=0)
-    reuse_s, full_s = _median(reuse_wall), _median(full_wall)
+    full_wall = time_calls(full, repeats=repeats).wall_s
+    reuse_s, full_s = median(reuse_wall), median(full_wall)
     return {"seconds": SEQUENCE_S, "frames": n_frames, "windows": int(index.shape[0]),
             "reuse_first_call_s": round(first_s, 2), "reuse_s": round(reuse_s, 4),
             "reuse_s_runs": _rounded(reuse_wall),
-            "reuse_encode_s": round(_median([e for e, _ in split[1:]]), 4),
-            "reuse_predict_s": round(_median([q for _, q in split[1:]]), 4),
+            "reuse_encode_s": round(median([e for e, _ in split[1:]]), 4),
+            "reuse_predict_s": round(median([q for _, q in split[1:]]), 4),
             "full_s": round(full_s, 4),
             "full_s_runs": _rounded(full_wall), "speedup": round(full_s / reuse_s, 2),
             "max_abs_diff": diff}
@@ -308,17 +293,15 @@ def bench_seeds(config: CalibConfig, batch: dict, k: int, repeats: int, warmup: 
     states = create_train_states(config, jax.random.split(jax.random.key(2), k), batch)
     dev_batch = jax.device_put(batch)
     keys = jax.random.split(jax.random.key(3), (repeats + warmup) * k).reshape(-1, k)
-    t0 = time.perf_counter()
-    step = train_step_seeds.lower(states, dev_batch, keys[0]).compile()
-    compile_s = time.perf_counter() - t0
+    step, compile_s = time_compile(train_step_seeds, states, dev_batch, keys[0])
     holder = {"states": states, "i": 0}
 
     def one():
         s, _ = step(holder["states"], dev_batch, keys[holder["i"]])
         holder["states"], holder["i"] = jax.block_until_ready(s), holder["i"] + 1
 
-    wall, _ = _timed(one, repeats, warmup)
-    step_s = _median(wall)
+    wall = time_calls(one, repeats=repeats, warmup=warmup).wall_s
+    step_s = median(wall)
     return {"k": k, "compile_s": round(compile_s, 2), "step_s": round(step_s, 4),
             "step_s_runs": _rounded(wall), "per_seed_s": round(step_s / k, 4),
             "one_seed_s": round(one_seed_s, 4),

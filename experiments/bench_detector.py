@@ -52,19 +52,20 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import platform
 import sys
-import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
+from _bench import time_calls, time_compile  # the script's folder is first on sys.path
 
 from uavcal_jax.detect.config import (
     DW_IMPLS,
     EVAL_PREDICT,
+    MODELS,
     SERVE_PREDICT,
     DetectorConfig,
 )
@@ -73,22 +74,8 @@ from uavcal_jax.detect.layers import depthwise_grouped, depthwise_shift
 from uavcal_jax.detect.model import init_detector
 from uavcal_jax.detect.predict import make_predict_fn
 
-MODELS = ("yznet-yolo-tiny", "yznet-yolo", "yolov5n-like")
-
-
-def _time(fn, args, runs: int, warmup: int = 3, cpu: list | None = None) -> np.ndarray:
-    """Wall-clock ms per call; appends the process CPU ms per call to ``cpu`` if given."""
-    for _ in range(warmup):
-        jax.block_until_ready(fn(*args))
-    out = []
-    for _ in range(runs):
-        t = time.perf_counter()
-        c = time.process_time()
-        jax.block_until_ready(fn(*args))
-        out.append(time.perf_counter() - t)
-        if cpu is not None:
-            cpu.append((time.process_time() - c) * 1e3)
-    return np.array(out) * 1e3
+#: Untimed calls after the compile.
+WARMUP = 3
 
 
 def bench_model(model: str, args, image) -> dict:
@@ -110,21 +97,19 @@ def bench_model(model: str, args, image) -> dict:
     for prefix, predict_cfg in settings:
         conf, max_det = predict_cfg.conf_thresh, predict_cfg.max_det
         fn = make_predict_fn(cfg, predict_cfg)
-        t0 = time.perf_counter()
-        compiled = fn.lower(variables, image).compile()
-        compile_s = time.perf_counter() - t0
-        cpu: list = []
-        ms = _time(compiled, (variables, image), args.runs, cpu=cpu)
-        det = compiled(variables, image)
+        compiled, compile_s = time_compile(fn, variables, image)
+        timed = time_calls(functools.partial(compiled, variables, image), repeats=args.runs,
+                           warmup=WARMUP)
+        det = timed.result
         res.update({
             f"{prefix}conf_thresh": conf,
             f"{prefix}max_det": max_det,
             f"{prefix}compile_s": round(compile_s, 3),
-            f"{prefix}ms_median": round(float(np.median(ms)), 3),
-            f"{prefix}ms_min": round(float(np.min(ms)), 3),
-            f"{prefix}ms_p90": round(float(np.percentile(ms, 90)), 3),
-            f"{prefix}cpu_ms_median": round(float(np.median(cpu)), 3),
-            f"{prefix}fps": round(1000.0 / float(np.median(ms)), 2),
+            f"{prefix}ms_median": round(1e3 * timed.median_s, 3),
+            f"{prefix}ms_min": round(1e3 * timed.min_s, 3),
+            f"{prefix}ms_p90": round(1e3 * timed.percentile_s(90), 3),
+            f"{prefix}cpu_ms_median": round(1e3 * timed.cpu_median_s, 3),
+            f"{prefix}fps": round(1.0 / timed.median_s, 2),
             f"{prefix}detections": int(det.valid.sum()),
         })
     return res
@@ -144,7 +129,8 @@ def dw_sweep(runs: int) -> list[dict]:
             jf = jax.jit(f, static_argnums=2)
             out = jf(x, kern, s)
             ref = out if ref is None else ref
-            row[f"{name}_ms"] = round(float(np.median(_time(jf, (x, kern, s), runs))), 3)
+            timed = time_calls(functools.partial(jf, x, kern, s), repeats=runs, warmup=WARMUP)
+            row[f"{name}_ms"] = round(1e3 * timed.median_s, 3)
             row[f"{name}_maxdiff"] = float(jnp.max(jnp.abs(out - ref)))
         print(json.dumps(row), file=sys.stderr, flush=True)
         rows.append(row)

@@ -43,9 +43,9 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import platform
-import statistics
 import sys
 import time
 import warnings
@@ -53,6 +53,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _bench import median, time_calls, time_compile  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import print_json
 from uavcal_jax.geometry.frames import GRAVITY, GRAVITY_W
@@ -89,16 +90,6 @@ def load_windows(n_windows: int, n_samples: int, seed: int = 0):
     return dt, gyro, accel, zeros, zeros, EUROC_ADIS16448, "synthetic"
 
 
-def median_time(fn, *args, repeats: int) -> float:
-    """Median wall time of ``fn(*args)`` over ``repeats`` runs (results blocked on)."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
-
 def gtsam_run(dt, gyro, accel, bg, ba, noise):
     """GTSAM's preintegration of every window from Python; returns (seconds, pims)."""
     import gtsam
@@ -130,17 +121,15 @@ def time_ours(dt, gyro, accel, bg, ba, noise, repeats: int, scheme: str, devices
     fn = over_devices(batched, devices)
     host = [np.asarray(x) for x in (dt, gyro, accel, bg, ba)]
     args = shard_batch(host, devices)
-    t0 = time.perf_counter()
-    compiled = fn.lower(*args).compile()
-    compile_s = time.perf_counter() - t0
-    out = jax.block_until_ready(compiled(*args))  # warm-up
-    batch_s = median_time(compiled, *args, repeats=repeats)
+    compiled, compile_s = time_compile(fn, *args)
+    timed = time_calls(functools.partial(compiled, *args), repeats=repeats, warmup=1)
+    batch_s, out = timed.median_s, timed.result
     if len(devices) == 1:  # nothing to copy
         return compile_s, batch_s, batch_s, out
     # what over_devices' call does, on the executable compiled above (no second compile)
     on_first = [jax.device_put(x, devices[0]) for x in host]
-    unplaced_s = median_time(lambda *a: compiled(*shard_batch(a, devices)), *on_first,
-                             repeats=repeats)
+    unplaced_s = time_calls(lambda: compiled(*shard_batch(on_first, devices)),
+                            repeats=repeats).median_s
     return compile_s, batch_s, unplaced_s, out
 
 
@@ -148,8 +137,7 @@ def single_window_latency(dt, gyro, accel, bg, ba, noise, scheme: str, n: int = 
     fn = jax.jit(lambda d, g, a, b1, b2: preintegrate(d, g, a, b1, b2, noise=noise,
                                                       scheme=scheme))
     args = [jax.device_put(x) for x in (dt[0], gyro[0], accel[0], bg[0], ba[0])]
-    jax.block_until_ready(fn(*args))
-    return median_time(fn, *args, repeats=n)
+    return time_calls(functools.partial(fn, *args), repeats=n, warmup=1).median_s
 
 
 def max_difference(out, pims) -> dict:
@@ -227,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(3):
             t, pims = gtsam_run(dt, gyro, accel, bg, ba, noise)
             times.append(t)
-        gtsam_s = statistics.median(times)
+        gtsam_s = median(times)
         result["gtsam_s"] = gtsam_s
         result["gtsam_samples_per_s"] = n_samples_total / gtsam_s
         result["ratio"] = result["ours_samples_per_s"] / result["gtsam_samples_per_s"]

@@ -1,6 +1,6 @@
 """Benchmark the whole stereo VIO: milliseconds per 752x480 stereo frame after warm-up.
 
-Runs :class:`uavcal_jax.vio.estimator.StereoVio` (default :class:`EstimatorConfig`) over the
+Runs :class:`uavcal_jax.vio.estimator.StereoVio` (default :class:`VioConfig`) over the
 stereo frames of a sequence -- by default the real ``../shared/data/euroc_v101_micro`` (95
 frames of V1_01, a hover), optionally any EuRoC folder (``--sequence``, e.g. a simulated
 flight from ``uavcal simulate``). Images are decoded before timing (decoding is not the VIO's
@@ -36,23 +36,18 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
+from _bench import stats  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.vio.config import VioConfig
 from uavcal_jax.vio.estimator import StereoVio
-from uavcal_jax.vio.estimator_config import EstimatorConfig
 from uavcal_jax.vio.run import estimate_stream, one_blas_thread, stereo_pairs
+from uavcal_jax.vio.stage_timer import TIMING_KEYS
 
 DEFAULT_SEQUENCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / \
     "euroc_v101_micro"
-STAGES = ("frontend", "solve", "marginalize", "total")
-
-
-def _stats(values) -> dict:
-    v = np.asarray(values, np.float64)
-    return {"mean": float(v.mean()), "median": float(np.median(v)),
-            "p95": float(np.percentile(v, 95))}
+STAGES = TIMING_KEYS
 
 
 def main() -> None:
@@ -70,7 +65,7 @@ def main() -> None:
     pairs = stereo_pairs(seq)[:args.max_frames]
     cam0, cam1 = seq.camera("cam0"), seq.camera("cam1")
     images = [(t, cam0.load(i), cam1.load(j) if j is not None else None) for t, i, j in pairs]
-    config = EstimatorConfig()
+    config = VioConfig()
     load_before = os.getloadavg()[0]
     per_stage = {k: [] for k in STAGES}
     wall_pipelined: list[float] = []
@@ -106,9 +101,9 @@ def main() -> None:
         "passes": args.passes, "compile_pass_s": compile_s,
         "keyframes_per_pass": keyframes / max(args.passes - 1, 1),
         "resets": resets,
-        **{f"{k}_ms": _stats(v) for k, v in per_stage.items() if v},
-        "cpu_ms": _stats(cpu_ms) if cpu_ms else None,
-        "pipelined_wall_ms": _stats(wall_pipelined) if wall_pipelined else None,
+        **{f"{k}_ms": stats(v) for k, v in per_stage.items() if v},
+        "cpu_ms": stats(cpu_ms) if cpu_ms else None,
+        "pipelined_wall_ms": stats(wall_pipelined) if wall_pipelined else None,
         "load_avg_1min": [load_before, os.getloadavg()[0]],
         "cpu_count": os.cpu_count(), "machine": platform.machine(),
         "config": {"keyframes": config.keyframes, "landmarks": config.landmarks,

@@ -27,11 +27,11 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
+import functools
 
 import jax
 import numpy as np
+from _bench import time_calls, time_once  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.vio import (
@@ -43,20 +43,6 @@ from uavcal_jax.vio import (
 )
 from uavcal_jax.vio.residuals import imu_mask, observation_mask
 from uavcal_jax.vio.synthetic import SyntheticConfig, perturb, synthetic_window
-
-
-def _timed(fn, *args):
-    t = time.perf_counter()
-    out = jax.block_until_ready(fn(*args))
-    return out, time.perf_counter() - t
-
-
-def _times(fn, args, repeats):
-    return [_timed(fn, *args)[1] for _ in range(repeats)]
-
-
-def _median_time(fn, args, repeats):
-    return statistics.median(_times(fn, args, repeats))
 
 
 def main(argv=None) -> dict:
@@ -72,10 +58,9 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
 
     with jax.enable_x64(True):
-        t = time.perf_counter()
-        w = synthetic_window(SyntheticConfig(n_frames=args.frames, n_landmarks=args.landmarks,
-                                             track_length=(4, args.frames)), seed=args.seed)
-        build_s = time.perf_counter() - t
+        w, build_s = time_once(lambda: synthetic_window(
+            SyntheticConfig(n_frames=args.frames, n_landmarks=args.landmarks,
+                            track_length=(4, args.frames)), seed=args.seed))
         x0 = perturb(w.truth, seed=args.seed + 1, rotation=2e-3, position=1e-2,
                      velocity=1e-2, inv_depth=0.05)
         p, q = w.problem, w.params
@@ -85,28 +70,32 @@ def main(argv=None) -> dict:
                "observations": int(observation_mask(p).sum()), "residual_rows": rows,
                "unknowns": 15 * args.frames + args.landmarks, "build_s": round(build_s, 2)}
 
-        step = jax.jit(gauss_newton_step)
-        _, out["structured_step_compile_s"] = _timed(step, x0, p, q)
-        times = _times(step, (x0, p, q), args.repeats)
-        out["structured_step_ms"] = 1e3 * statistics.median(times)
-        out["structured_step_min_ms"] = 1e3 * min(times)
+        step = functools.partial(jax.jit(gauss_newton_step), x0, p, q)
+        _, out["structured_step_compile_s"] = time_once(step)  # the first call compiles
+        times = time_calls(step, repeats=args.repeats)
+        out["structured_step_ms"] = 1e3 * times.median_s
+        out["structured_step_min_ms"] = 1e3 * times.min_s
 
-        solver = StructuredSolver(SolverConfig(max_iterations=args.iterations))
-        (x, info), out["structured_solve_compile_s"] = _timed(solver, x0, p, q)
-        out["structured_solve_ms"] = 1e3 * _median_time(solver, (x0, p, q), args.repeats)
+        solver = functools.partial(
+            StructuredSolver(SolverConfig(max_iterations=args.iterations, ftol=1e-12)), x0, p, q)
+        (x, info), out["structured_solve_compile_s"] = time_once(solver)
+        out["structured_solve_ms"] = 1e3 * time_calls(solver, repeats=args.repeats).median_s
         out["structured_iterations"] = int(info.iterations)
         out["structured_cost"] = float(info.cost_final)
 
         slow_repeats = max(2, args.repeats // 5)
-        gn = JaxoptSolver("gauss_newton", maxiter=args.iterations, tol=1e-10)
-        (xg, ginfo), out["jaxopt_gn_compile_s"] = _timed(gn, x0, p, q)
-        out["jaxopt_gn_solve_s"] = _median_time(gn, (x0, p, q), slow_repeats)
+        gn = functools.partial(JaxoptSolver("gauss_newton", maxiter=args.iterations, tol=1e-10),
+                               x0, p, q)
+        (xg, ginfo), out["jaxopt_gn_compile_s"] = time_once(gn)
+        out["jaxopt_gn_solve_s"] = time_calls(gn, repeats=slow_repeats).median_s
         out["jaxopt_gn_iterations"] = int(ginfo.iterations)
         out["jaxopt_gn_cost"] = float(window_cost(xg, p, q))
         if args.lm:
-            lm = JaxoptSolver("levenberg_marquardt", maxiter=args.iterations, tol=1e-10)
-            (xl, linfo), out["jaxopt_lm_compile_s"] = _timed(lm, x0, p, q)
-            out["jaxopt_lm_solve_s"] = _median_time(lm, (x0, p, q), slow_repeats)
+            lm = functools.partial(
+                JaxoptSolver("levenberg_marquardt", maxiter=args.iterations, tol=1e-10),
+                x0, p, q)
+            (xl, linfo), out["jaxopt_lm_compile_s"] = time_once(lm)
+            out["jaxopt_lm_solve_s"] = time_calls(lm, repeats=slow_repeats).median_s
             out["jaxopt_lm_iterations"] = int(linfo.iterations)
             out["jaxopt_lm_cost"] = float(window_cost(xl, p, q))
         out["speedup_step_vs_jaxopt_gn_solve"] = (

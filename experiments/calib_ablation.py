@@ -40,7 +40,7 @@ The ``small`` preset's smaller frames (160x96) make the larger patches cover mor
 than at the paper's 320x180.
 
 Budget (``--budget``, default 20 min, the whole script): the ``small`` preset
-(:data:`uavcal_jax.calib.protocols.PRESETS`) with a window every 10 s (non-overlapping at the
+(:data:`uavcal_jax.calib.presets.PRESETS`) with a window every 10 s (non-overlapping at the
 preset's 10 s; the window grid keeps that stride, as the paper keeps its 1 s, so every window
 length has as many windows and steps per epoch), 2 seeds, and each grid at the reduced
 resolution of the table's budget column: the preset's value and one other (the cheaper end of
@@ -48,7 +48,7 @@ a Table 5 grid, the shorter window of Table 1), every value of the optimisation 
 (``--full-grid``: every value). That is 14 distinct fits, each a compile of its own (1-3 min on
 2 shared cores the first time, seconds once in the persistent XLA cache: a first run pays them
 out of its budget). Every fit first runs two epochs, then all are raised together to a common
-epoch count that fills the time left (see ``experiments/_calib_common.py``): every point of a
+epoch count that fills the time left (:mod:`uavcal_jax.calib.schedule`): every point of a
 grid trains equally long. On 2 shared CPU cores (warm cache) the two first epochs of the 14
 fits (~106 training windows, 7 steps an epoch) and their evaluations take the whole default
 budget, more when the cores are busier: it checks the pipeline and the baselines, and
@@ -81,13 +81,9 @@ from pathlib import Path
 import numpy as np
 from _calib_common import (  # the script's folder is first on sys.path
     ROOT,
-    Budget,
-    Job,
     add_common_arguments,
     budget_record,
-    count,
     describe,
-    evaluate_best,
     fmt_mean_std,
     log,
     mode_line,
@@ -95,15 +91,15 @@ from _calib_common import (  # the script's folder is first on sys.path
     pick_sequences,
     render,
     resolve,
-    train_jobs,
 )
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.calib.config import PROTOCOLS
-from uavcal_jax.calib.data import load_windows
-from uavcal_jax.calib.protocols import mean_std, trial_sides
-from uavcal_jax.calib.sim_sets import FAMILIES
+from uavcal_jax.calib.data import count_windows, load_windows
+from uavcal_jax.calib.schedule import Budget, Job, evaluate_best, train_jobs
+from uavcal_jax.calib.trials import mean_std_of, write_trial_data
 from uavcal_jax.config import to_dict
+from uavcal_jax.sim.training_sets import FAMILIES
 from uavcal_jax.xla_cache import enable_compilation_cache
 
 
@@ -213,7 +209,8 @@ def plot_figure3(path, grid: Grid, rows: list[dict], default) -> str:
     return str(path)
 
 
-def main() -> None:
+def _arguments() -> tuple[argparse.ArgumentParser, argparse.Namespace, list[str]]:
+    """``(parser, args, grids)``."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_common_arguments(ap, ROOT / "experiments" / "out" / "calib_ablation")
@@ -236,6 +233,54 @@ def main() -> None:
     grids = [g for g in args.grids.split(",") if g]
     if any(g not in GRIDS for g in grids):
         ap.error(f"unknown grids: {[g for g in grids if g not in GRIDS]}; one of {list(GRIDS)}")
+    return ap, args, grids
+
+
+def _plan(args, grids: list[str], full: bool, loader: Loader) -> tuple[list[Job], list]:
+    """``(jobs, points)``: one ``(grid, value, window, job)`` per grid point; a value equal to
+    the base configuration's is one fit shared by every grid holding it, in the run folder
+    ``OUT/runs/<grid>/<value>`` of its first point."""
+    by_config: dict = {}
+    points = []
+    for g in grids:
+        grid = GRIDS[g]
+        for value in (grid.full if full else grid.budget):
+            calib, loop, window = resolve(args, [grid.setting(value)], protocol=args.protocol,
+                                          seeds=args.seeds, epochs=args.max_epochs)
+            key = (calib, loop, window)
+            if key not in by_config:
+                run_dir = args.out / "runs" / g / str(value)
+                run_dir.mkdir(parents=True, exist_ok=True)
+                by_config[key] = Job(f"{g}={value}", calib, loop,
+                                     lambda window=window: loader(window), run_dir)
+            points.append((g, value, window, by_config[key]))
+    return list(by_config.values()), points
+
+
+def _grid_rows(grids: list[str], points: list, evals: dict, info: dict) -> dict[str, list]:
+    """Per grid, one row per point: its training, mean ± std over the seeds of the validation
+    offset RMSE and sign F1, and the two baselines'."""
+    tables = {}
+    for g in grids:
+        rows = []
+        for pg, value, _, job in points:
+            if pg != g:
+                continue
+            ev = evals[job.name]
+            rows.append({"value": value, "epochs": job.epochs,
+                         "best_epoch": job.summary["best_epoch"], "stopped_early": job.stopped,
+                         **info[job.name],
+                         **mean_std_of(ev["metrics"], ("offset_rmse", "sign_f1")),
+                         "mean_offset": _headline(ev["baseline_mean_offset"]),
+                         "window_mean": _headline(ev["baseline_window_mean"]),
+                         "val_loss": ev["loss"], "train_loss": job.summary["best"].get("loss"),
+                         "offsets": ev["offsets"], "run": str(job.run_dir)})
+        tables[g] = rows
+    return tables
+
+
+def main() -> None:
+    ap, args, grids = _arguments()
     full = args.full_grid or args.paper
     val_names = set(args.val_sequences or VAL_SEQUENCES[args.family])
 
@@ -253,30 +298,15 @@ def main() -> None:
     loader = Loader(folders, [n in val_names for n in names], keep=1 if args.paper else None)
     shutil.rmtree(args.out / "runs", ignore_errors=True)
     args.out.mkdir(parents=True, exist_ok=True)
-
-    # a value equal to the base configuration's is one fit shared by every grid holding it
-    by_config: dict = {}
-    points = []
-    for g in grids:
-        grid = GRIDS[g]
-        for value in (grid.full if full else grid.budget):
-            calib, loop, window = resolve(args, [grid.setting(value)], protocol=args.protocol,
-                                          seeds=args.seeds, epochs=args.max_epochs)
-            key = (calib, loop, window)
-            if key not in by_config:
-                run_dir = args.out / "runs" / g / str(value)
-                run_dir.mkdir(parents=True, exist_ok=True)
-                by_config[key] = Job(f"{g}={value}", calib, loop,
-                                     lambda window=window: loader(window), run_dir)
-            points.append((g, value, window, by_config[key]))
-    jobs = list(by_config.values())
+    jobs, points = _plan(args, grids, full, loader)
     info: dict = {}
 
     def after_first(job, _res):
         # the data of a point is fixed: record it while it is loaded (paper mode loads lazily)
         train, val = job.data()
-        (job.run_dir / "data.json").write_text(json.dumps(trial_sides(train, val)) + "\n")
-        info[job.name] = {"train_windows": count(train), "val_windows": count(val),
+        write_trial_data(job.run_dir, train, val)
+        info[job.name] = {"train_windows": count_windows(train),
+                          "val_windows": count_windows(val),
                           "frames_per_window": train[0].windows.frames_per_window}
     t_data = budget.elapsed()
     log(args.quiet, f"{len(points)} grid points ({len(jobs)} distinct fits) x {args.seeds} "
@@ -284,32 +314,12 @@ def main() -> None:
                     f"{'no time limit' if args.paper else f'{budget.left() / 60:.1f} min left'}")
     schedule = train_jobs(jobs, budget, reserve_s=5.0, quiet=args.quiet,
                           after_first=after_first)
-    evals = {}
-    for job in jobs:
-        _, _, ev = evaluate_best(job, quiet=args.quiet)
-        evals[job.name] = ev
+    evals = {job.name: evaluate_best(job, quiet=args.quiet)[2] for job in jobs}
+    tables = _grid_rows(grids, points, evals, info)
+    plots = [plot_figure3(args.out / f"fig3_{g}.png", GRIDS[g], rows,
+                          _field(base_dict, GRIDS[g].key)) for g, rows in tables.items()]
 
-    tables, plots = {}, []
-    for g in grids:
-        rows = []
-        for pg, value, _, job in points:
-            if pg != g:
-                continue
-            ev = evals[job.name]
-            rows.append({"value": value, "epochs": job.epochs,
-                         "best_epoch": job.summary["best_epoch"], "stopped_early": job.stopped,
-                         **info[job.name],
-                         "offset_rmse": mean_std([m["offset_rmse"] for m in ev["metrics"]]),
-                         "sign_f1": mean_std([m["sign_f1"] for m in ev["metrics"]]),
-                         "mean_offset": _headline(ev["baseline_mean_offset"]),
-                         "window_mean": _headline(ev["baseline_window_mean"]),
-                         "val_loss": ev["loss"], "train_loss": job.summary["best"].get("loss"),
-                         "offsets": ev["offsets"], "run": str(job.run_dir)})
-        tables[g] = rows
-        plots.append(plot_figure3(args.out / f"fig3_{g}.png", GRIDS[g], rows,
-                                  _field(base_dict, GRIDS[g].key)))
-
-    rec_budget = budget_record(budget, args.paper, args.budget)
+    rec_budget = budget_record(budget, args.paper)
     T = next((info[j.name]["frames_per_window"] for _, _, w, j in points if w == base_window),
              None)
     settings = {"preset": "paper" if args.paper else "small", "sets": args.set,

@@ -2,14 +2,14 @@
 predict`` without ``--checkpoint``).
 
 Recipe: ``--flights`` seeded procedural flights of ``--duration`` s at the demo's resolution
-(:data:`uavcal_jax.calib.sim_sets.RENDER_RESOLUTION`), rendered once into ``--cache``
-(:mod:`uavcal_jax.calib.sim_sets`); trained on them (what ``uavcal calib train`` runs) with the
-physical protocol
-(offsets in the range of real IMU biases, like the demo's), a fifth of the flights held
-out for validation, early stopping on the validation loss, and ``uavcal calib train``'s
-``small`` preset (160x96 frames in 32x32 patches, d 64, pre-norm, AdamW 1e-3) with the changes
-of :data:`SETTINGS` (2 s windows at the full 20 Hz, so the demo's 3 s flight holds some);
-then the run's ``config.json`` and best checkpoint (optimiser moments dropped,
+(:data:`uavcal_jax.sim.training_sets.RENDER_RESOLUTION`), rendered once into ``--cache``
+(:mod:`uavcal_jax.sim.training_sets`); trained on them (what ``uavcal calib train`` runs) with
+the ``shipped`` preset (:data:`uavcal_jax.calib.presets.PRESETS`: ``small``'s 160x96 frames in
+32x32 patches, d 64, pre-norm, AdamW 1e-3, with the physical injection protocol -- offsets in
+the range of real IMU biases, like the demo's -- and 2 s windows at the full 20 Hz, so the
+demo's 3 s flight holds some), a fifth of the flights held out for validation, early stopping
+on the validation loss; then the run's ``config.json`` and best checkpoint (optimiser moments
+dropped,
 :func:`uavcal_jax.calib.loop.export_weights`) go to
 :data:`uavcal_jax.calib.pretrained.DEFAULT_WEIGHTS` (with ``--install``).
 
@@ -32,15 +32,13 @@ from pathlib import Path
 from uavcal_jax.argtypes import positive, positive_int, print_json
 from uavcal_jax.calib.data import load_windows
 from uavcal_jax.calib.loop import export_weights, fit
+from uavcal_jax.calib.presets import PRESETS, resolve_configs
 from uavcal_jax.calib.pretrained import DEFAULT_WEIGHTS
-from uavcal_jax.calib.protocols import resolve_configs
-from uavcal_jax.calib.sim_sets import RENDER_RESOLUTION, SimSetConfig, simulated_set
+from uavcal_jax.sim.training_sets import RENDER_RESOLUTION, SimSetConfig, simulated_set
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The shipped model: ``uavcal calib train --preset small --protocol physical --set`` these.
-PRESET = "small"
-SETTINGS = ("window.duration=2", "window.stride=0.5", "window.frame_step=1", "train.patience=6",
-            "loop.monitor=val", "loop.keep=1")
+#: The shipped model's preset (``uavcal calib train --preset shipped``).
+PRESET = "shipped"
 #: Seed of the procedural flights (the demo flies seed 0: training starts past it).
 FLIGHT_SEED = 1000
 
@@ -54,7 +52,8 @@ def main() -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--flights", type=positive_int, default=24, help="procedural flights")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
-    ap.add_argument("--epochs", type=positive_int, default=60, help="most epochs")
+    ap.add_argument("--epochs", type=positive_int, default=PRESETS[PRESET].train.epochs,
+                    help="most epochs [default: the preset's, %(default)s]")
     ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "calib_cache")
     ap.add_argument("--run", type=Path, default=ROOT / "experiments" / "out" / "calib_default")
     ap.add_argument("--install", action="store_true",
@@ -67,18 +66,20 @@ def main() -> None:
                                          resolution=RENDER_RESOLUTION, seed=FLIGHT_SEED),
                             args.cache, progress=not args.quiet)
     t_sim = time.perf_counter() - t0
-    config, loop, window = resolve_configs(SETTINGS, preset=PRESET, protocol="physical",
-                                           epochs=args.epochs)
+    run = resolve_configs(preset=PRESET, epochs=args.epochs)
+    config, loop, window = run.calib, run.loop, run.window
     # whole flights held out (overlapping windows of one flight share frames: a split over
     # windows would validate on frames it trained on)
     parts = load_windows(folders, window)
     n_val = max(1, round(loop.val_fraction * len(parts)))
     train, val = parts[:-n_val], parts[-n_val:]
     shutil.rmtree(args.run, ignore_errors=True)
-    res = fit(config, train, val, args.run, loop=loop, progress=not args.quiet).summary
+    inputs = {"action": "experiments/calib_default_weights.py", "preset": PRESET,
+              "flights": args.flights, "duration": args.duration, "flight_seed": FLIGHT_SEED}
+    res = fit(config, train, val, args.run, loop=loop, progress=not args.quiet,
+              inputs=inputs).summary
     best = res["best"]
     summary = {"flights": args.flights, "duration_s": args.duration, "preset": PRESET,
-               "settings": list(SETTINGS),
                "windows": {"train": res["num_train"], "val": res["num_val"]},
                "epochs_run": res["epochs"], "best_epoch": res["best_epoch"],
                "val_offset_rmse": best.get("val_offset_rmse"),

@@ -35,11 +35,11 @@ mean and standard deviation over trials of sign F1 and offset RMSE (gyro rad/s a
 m/s^2 pooled, as the paper; the per-sensor RMSEs beside), next to the paper's Table 4.
 
 Budget (``--budget``, default 20 min, the whole script): the ``small`` preset
-(:data:`uavcal_jax.calib.protocols.PRESETS`: 160x96 frames in 32x32 patches at 10 Hz, d 64,
+(:data:`uavcal_jax.calib.presets.PRESETS`: 160x96 frames in 32x32 patches at 10 Hz, d 64,
 pre-norm, AdamW 1e-3) on non-overlapping 10 s windows, and 3 trials per experiment
 (:data:`BUDGET_TRIALS`: 3 x 2 protocols x 2 models x 3 experiments = 36 fits). Every fit first
 runs two epochs, then all are raised together to a common epoch count that fills the time
-left (see ``experiments/_calib_common.py``); the best checkpoint of each (by training loss)
+left (:mod:`uavcal_jax.calib.schedule`); the best checkpoint of each (by training loss)
 is evaluated once at the end. On 2 shared CPU cores a video fit's epoch over the simulated
 EuRoC set (~115 windows) takes ~15 s, a common epoch of the 36 fits ~4 min; loading the windows
 (~2 min), least squares, the two first epochs and the final evaluations (~3.5 min) fill the
@@ -77,21 +77,15 @@ import jax
 import numpy as np
 from _calib_common import (  # the script's folder is first on sys.path
     ROOT,
-    Budget,
-    Job,
     add_common_arguments,
     budget_record,
-    count,
     describe,
-    evaluate_best,
     fmt_mean_std,
     log,
     mode_line,
     pick_sequences,
     render,
     resolve,
-    train_jobs,
-    window_subset,
 )
 
 from uavcal_jax.argtypes import positive_int, print_json
@@ -101,13 +95,22 @@ from uavcal_jax.calib.baselines import (
     least_squares_windows,
 )
 from uavcal_jax.calib.config import PROTOCOLS
-from uavcal_jax.calib.data import load_windows
+from uavcal_jax.calib.data import count_windows, load_windows
 from uavcal_jax.calib.loop import evaluate, mean_offset_baseline, validation_draws
-from uavcal_jax.calib.metrics import calibration_metrics
+from uavcal_jax.calib.metrics import calibration_metrics, seed_summary
 from uavcal_jax.calib.predict import channel_names, expand_to_six, predict_sequence
-from uavcal_jax.calib.protocols import TRIAL_FORMAT, mean_std, trial_sides, validation_trials
+from uavcal_jax.calib.schedule import Budget, Job, evaluate_best, train_jobs
+from uavcal_jax.calib.trials import (
+    TRIAL_FORMAT,
+    mean_std_of,
+    spread,
+    trial_dir,
+    validation_trials,
+    write_trial_data,
+)
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.errors import DataError
+from uavcal_jax.plots import plot_offsets
 from uavcal_jax.xla_cache import enable_compilation_cache
 
 
@@ -150,35 +153,12 @@ LS_CONFIGS = (LeastSquaresConfig(iterations=6, chunk=1),
 BUDGET_TRIALS = 3
 #: Seconds set aside per Figure 2 plot (predict with two models, draw).
 PLOT_RESERVE_S = 15.0
+#: The :func:`~uavcal_jax.calib.metrics.seed_summary` numbers averaged over trials.
+HEADLINE = ("sign_f1", "offset_rmse", "gyro_rmse", "accel_rmse")
 
 
 def _plain(tree):
     return jax.tree.map(lambda x: np.asarray(x).tolist(), tree)
-
-
-def spread(n: int, k: int | None) -> list[int]:
-    """``k`` of the indices ``0..n-1`` spread evenly, first and last included (``None``:
-    all)."""
-    if k is None or k >= n:
-        return list(range(n))
-    return sorted({int(i) for i in np.linspace(0, n - 1, k).round()})
-
-
-def method_record(per_seed: list[dict], channels: tuple[str, ...]) -> dict:
-    """Headline numbers of one method on one trial from eq. 19-23 metrics (one dict per seed:
-    averaged over seeds): ``sign_f1``, ``offset_rmse`` (all channels pooled), ``gyro_rmse``
-    (rad/s), ``accel_rmse`` (m/s^2) and the per-channel RMSE and sign F1."""
-    def avg(key):
-        return np.mean([np.asarray(m[key], np.float64) for m in per_seed], axis=0)
-
-    out = {"sign_f1": float(avg("sign_f1")), "offset_rmse": float(avg("offset_rmse")),
-           "offset_rmse_per_channel": avg("offset_rmse_per_channel").tolist(),
-           "sign_f1_per_channel": avg("sign_f1_per_channel").tolist()}
-    for sensor, head in (("gyro", "g"), ("accel", "a")):
-        pick = [j for j, c in enumerate(channels) if c.startswith(head)]
-        out[f"{sensor}_rmse"] = (float(np.mean([np.sqrt(np.mean(np.square(np.asarray(
-            m["offset_rmse_per_channel"])[pick]))) for m in per_seed])) if pick else None)
-    return out
 
 
 def least_squares_trial(val, offsets: np.ndarray, sensor: str, ground_truth) -> dict:
@@ -188,7 +168,7 @@ def least_squares_trial(val, offsets: np.ndarray, sensor: str, ground_truth) -> 
     reads a sequence's."""
     pick = (slice(None) if offsets.shape[1] == 6 else
             slice(0, 3) if sensor == "gyro" else slice(3, 6))
-    subs = [(window_subset(p.windows, p.indices), ground_truth(p.source)) for p in val]
+    subs = [(p.windows.subset(p.indices), ground_truth(p.source)) for p in val]
     bias = np.concatenate([ground_truth_bias_windows(sub, gt) for sub, gt in subs])[:, pick]
     last_err = None
     for cfg in LS_CONFIGS:
@@ -210,38 +190,12 @@ def least_squares_trial(val, offsets: np.ndarray, sensor: str, ground_truth) -> 
                                                          target))}
 
 
-def plot_figure2(path: Path, start_s: np.ndarray, true: np.ndarray, channels, lines: dict,
-                 title: str) -> Path:
-    """Figure 2: per channel, each method's per-window offset against window start time, and
-    the true (injected) offset."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    c = len(channels)
-    fig, axes = plt.subplots(c // 3, 3, figsize=(12, 3.3 * (c // 3)), squeeze=False,
-                             sharex=True)
-    styles = {"transformer": dict(color="C0", marker=".", ls="-", lw=1),
-              "imu_only": dict(color="C1", marker=".", ls="-", lw=1),
-              "least_squares": dict(color="C2", ls="-", lw=1),
-              "least_squares_oracle": dict(color="C2", ls=":", lw=1),
-              "mean_offset": dict(color="0.5", ls="-.", lw=1)}
-    for j, (ax, name) in enumerate(zip(axes.flat, channels, strict=True)):
-        for key, values in lines.items():
-            ax.plot(start_s, values[:, j], ms=3, label=METHODS[key], **styles[key])
-        ax.axhline(true[j], color="k", ls="--", lw=1.3, label="true (injected)")
-        ax.set_title(name + (" (rad/s)" if name.startswith("g") else " (m/s^2)"))
-        ax.grid(alpha=0.3)
-    for ax in axes[-1]:
-        ax.set_xlabel("window start (s)")
-    handles, labels = axes.flat[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+#: Figure 2's line of each method (:func:`uavcal_jax.plots.plot_offsets` draws it).
+FIGURE2_STYLES = {"transformer": dict(color="C0", marker=".", ls="-", lw=1, ms=3),
+                  "imu_only": dict(color="C1", marker=".", ls="-", lw=1, ms=3),
+                  "least_squares": dict(color="C2", ls="-", lw=1, ms=3),
+                  "least_squares_oracle": dict(color="C2", ls=":", lw=1, ms=3),
+                  "mean_offset": dict(color="0.5", ls="-.", lw=1, ms=3)}
 
 
 def _parse_trials(text: str):
@@ -252,7 +206,8 @@ def _trial_count(text: str):
     return "all" if text == "all" else positive_int(text)
 
 
-def main() -> None:
+def _arguments() -> tuple[argparse.Namespace, list[str], list[str], int | None]:
+    """``(args, experiments, protocols, trials per experiment or None for all)``."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_common_arguments(ap, ROOT / "experiments" / "out" / "calib_protocols")
@@ -284,15 +239,13 @@ def main() -> None:
         n_trials = None if args.paper else BUDGET_TRIALS
     else:
         n_trials = None if args.trials == "all" else args.trials
+    return args, experiments, protocols, n_trials
 
-    budget = Budget(None if args.paper else args.budget)
-    enable_compilation_cache()
-    extra = [] if args.folds is None else [f"loop.folds={args.folds}"]
-    _, _, window = resolve(args, extra, protocol="paper", validation="loo")
-    shutil.rmtree(args.out / "runs", ignore_errors=True)
-    args.out.mkdir(parents=True, exist_ok=True)
 
-    # data: each folder's windows loaded once (MH_01_easy serves euroc_loo and mh01_kfold)
+def _load(args, experiments: list[str], window) -> tuple[dict, dict, dict, dict]:
+    """``(windows per experiment, sequence name per folder, skipped experiments, windows per
+    folder)``: each folder's windows loaded once (MH_01_easy serves euroc_loo and
+    mh01_kfold)."""
     loaded, skipped, exp_parts, seq_name = {}, {}, {}, {}
     for name in experiments:
         exp = EXPERIMENTS[name]
@@ -308,17 +261,14 @@ def main() -> None:
             if f not in loaded:
                 (loaded[f],) = load_windows([f], window)
         exp_parts[name] = [loaded[f] for f in folders]
-    t_data = budget.elapsed()
-    log(args.quiet, f"data ready in {t_data:.0f} s: {len(loaded)} sequences, "
-                    f"{count(loaded.values())} windows")
+    return exp_parts, seq_name, skipped, loaded
 
-    gt_cache: dict[str, object] = {}
 
-    def ground_truth(source: str):
-        if source not in gt_cache:
-            gt_cache[source] = read_euroc(source).ground_truth
-        return gt_cache[source]
-
+def _plan(args, exp_parts: dict, seq_name: dict, protocols: list[str], extra: list[str],
+          n_trials: int | None) -> tuple[list[Job], dict, dict, dict]:
+    """``(jobs, trials, trial key per job name, trials per experiment)``: one fit per
+    experiment, protocol, trial run and variant, in the folder
+    ``OUT/runs/<experiment>/<protocol>/<variant>/trial_NN`` with its ``data.json``."""
     jobs, trials, job_trial, trial_counts = [], {}, {}, {}
     for name, parts in exp_parts.items():
         for protocol in protocols:
@@ -330,25 +280,34 @@ def main() -> None:
                 train, val = every[i]
                 key = (name, protocol, i)
                 trials[key] = {"held_out": [seq_name[p.source] for p in val],
-                               "train_windows": count(train), "val_windows": count(val),
-                               "val": val, "jobs": {}}
+                               "train_windows": count_windows(train),
+                               "val_windows": count_windows(val), "val": val, "jobs": {}}
                 for variant, settings in VARIANTS.items():
                     seed = args.seed + i if args.trial_seeds else args.seed
                     calib, _, _ = resolve(args, [*extra, f"train.seed={seed}", *settings],
                                           protocol=protocol, validation=loop.validation,
                                           epochs=args.max_epochs)
-                    run_dir = args.out / "runs" / name / protocol / variant / TRIAL_FORMAT.format(i)
-                    run_dir.mkdir(parents=True, exist_ok=True)
-                    (run_dir / "data.json").write_text(json.dumps(trial_sides(train, val)) + "\n")
+                    run = args.out / "runs" / name / protocol / variant
+                    run_dir = write_trial_data(trial_dir(run, i, len(every)), train, val)
                     job = Job(f"{name}/{protocol}/{variant}/{TRIAL_FORMAT.format(i)}", calib,
                               loop, lambda t=train, v=val: (t, v), run_dir)
                     job_trial[job.name] = key
                     jobs.append(job)
                     trials[key]["jobs"][variant] = job
+    return jobs, trials, job_trial, trial_counts
+
+
+def _first_call(trials: dict, job_trial: dict):
+    """``after_first`` of :func:`train_jobs`: the trial's K offsets (independent of training)
+    and least squares on the same windows with the same offsets, once per trial."""
+    gt_cache: dict[str, object] = {}
+
+    def ground_truth(source: str):
+        if source not in gt_cache:
+            gt_cache[source] = read_euroc(source).ground_truth
+        return gt_cache[source]
 
     def after_first(job, res):
-        """The trial's K offsets (independent of training) and least squares on the same
-        windows with the same offsets."""
         t = trials[job_trial[job.name]]
         offsets = validation_draws(res.state, job.config.train.seeds, job.loop.val_offsets)
         if "offsets" not in t:
@@ -363,41 +322,39 @@ def main() -> None:
             # both variants draw from (seed, protocol, training statistics): a bug if not
             t.setdefault("offset_mismatch", []).append(job.name)
 
-    n_plots = sum(1 for (_, _, i) in trials if args.plot_trials == "all" or i in args.plot_trials)
-    log(args.quiet, f"{len(jobs)} fits, {n_plots} plots; "
-                    f"{'no time limit' if args.paper else f'{budget.left() / 60:.1f} min left'}")
-    schedule = train_jobs(jobs, budget, reserve_s=PLOT_RESERVE_S * n_plots + 5.0,
-                          quiet=args.quiet, after_first=after_first)
+    return after_first
 
-    # ------------------------------------------------------------------ evaluate per trial
-    channels = None
-    if jobs:
-        channels = channel_names(jobs[0].config.model.imu_channels,
-                                 jobs[0].config.injection.single_sensor)
-    plots, t_eval = [], time.perf_counter()
+
+def _evaluate(args, trials: dict, channels) -> list[str]:
+    """Every method's :func:`seed_summary` on each trial (``trials[key]["methods"]``) and the
+    Figure 2 plots of ``--plot-trials``; returns the plots' paths."""
+    plots = []
     for key, t in trials.items():
         methods, states = {}, {}
         for variant, job in t["jobs"].items():
             state, seeds, ev = evaluate_best(job, t["offsets"], args.quiet)
             states[variant] = (state, seeds)
-            methods[variant] = {**method_record(ev["metrics"], channels),
+            methods[variant] = {**seed_summary(ev["metrics"], channels),
                                 "epochs": job.epochs, "best_epoch": job.summary["best_epoch"],
                                 "stopped_early": job.stopped, "run": str(job.run_dir),
                                 "best": job.summary["best"]}
             if variant == "transformer":  # the baselines depend on the data only
-                methods["mean_offset"] = method_record([ev["baseline_mean_offset"]], channels)
-                methods["window_mean"] = method_record([ev["baseline_window_mean"]], channels)
+                methods["mean_offset"] = seed_summary([ev["baseline_mean_offset"]], channels)
+                methods["window_mean"] = seed_summary([ev["baseline_window_mean"]], channels)
         ls = t["least_squares"]
         if "error" not in ls:
-            methods["least_squares"] = {**method_record([ls["metrics"]], channels),
+            methods["least_squares"] = {**seed_summary([ls["metrics"]], channels),
                                         "interval_s": ls["interval_s"]}
-            methods["least_squares_oracle"] = method_record([ls["oracle_metrics"]], channels)
+            methods["least_squares_oracle"] = seed_summary([ls["oracle_metrics"]], channels)
         t["methods"] = {m: methods[m] for m in METHODS if m in methods}
         if args.plot_trials == "all" or key[2] in args.plot_trials:
             plots.append(str(_figure2(args, key, t, states, channels)))
-    eval_s = time.perf_counter() - t_eval
+    return plots
 
-    # ------------------------------------------------------------------ aggregate
+
+def _aggregate(trials: dict) -> dict:
+    """``{experiment: {protocol: {method: mean ± std over trials}}}`` of :data:`HEADLINE`,
+    with the trained methods' epochs and best epochs."""
     results: dict = {}
     for (name, protocol, _), t in trials.items():
         per = results.setdefault(name, {}).setdefault(protocol, {})
@@ -408,15 +365,44 @@ def main() -> None:
         for protocol, per_method in per_protocol.items():
             for method, recs in per_method.items():
                 agg.setdefault(name, {}).setdefault(protocol, {})[method] = {
-                    "trials": len(recs), "sign_f1": mean_std([r["sign_f1"] for r in recs]),
-                    "offset_rmse": mean_std([r["offset_rmse"] for r in recs]),
-                    "gyro_rmse": mean_std([r["gyro_rmse"] for r in recs]),
-                    "accel_rmse": mean_std([r["accel_rmse"] for r in recs]),
+                    "trials": len(recs), **mean_std_of(recs, HEADLINE),
                     **({"epochs": [r["epochs"] for r in recs],
                         "best_epoch": [r["best_epoch"] for r in recs]}
                        if "epochs" in recs[0] else {})}
+    return agg
 
-    rec_budget = budget_record(budget, args.paper, args.budget)
+
+def main() -> None:
+    args, experiments, protocols, n_trials = _arguments()
+    budget = Budget(None if args.paper else args.budget)
+    enable_compilation_cache()
+    extra = [] if args.folds is None else [f"loop.folds={args.folds}"]
+    _, _, window = resolve(args, extra, protocol="paper", validation="loo")
+    shutil.rmtree(args.out / "runs", ignore_errors=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    exp_parts, seq_name, skipped, loaded = _load(args, experiments, window)
+    t_data = budget.elapsed()
+    log(args.quiet, f"data ready in {t_data:.0f} s: {len(loaded)} sequences, "
+                    f"{count_windows(loaded.values())} windows")
+    jobs, trials, job_trial, trial_counts = _plan(args, exp_parts, seq_name, protocols, extra,
+                                                  n_trials)
+    n_plots = sum(1 for (_, _, i) in trials if args.plot_trials == "all" or i in args.plot_trials)
+    log(args.quiet, f"{len(jobs)} fits, {n_plots} plots; "
+                    f"{'no time limit' if args.paper else f'{budget.left() / 60:.1f} min left'}")
+    schedule = train_jobs(jobs, budget, reserve_s=PLOT_RESERVE_S * n_plots + 5.0,
+                          quiet=args.quiet, after_first=_first_call(trials, job_trial))
+
+    channels = None
+    if jobs:
+        channels = channel_names(jobs[0].config.model.imu_channels,
+                                 jobs[0].config.injection.single_sensor)
+    t_eval = time.perf_counter()
+    plots = _evaluate(args, trials, channels)
+    eval_s = time.perf_counter() - t_eval
+    agg = _aggregate(trials)
+
+    rec_budget = budget_record(budget, args.paper)
     settings = _settings(jobs, window, args, n_trials, trial_counts)
     table = _table(agg, trials, settings, rec_budget, schedule, skipped, args)
     (args.out / "table.md").write_text(table)
@@ -426,15 +412,7 @@ def main() -> None:
         "schedule": schedule, "skipped": skipped,
         "paper_table4": {k: {"sign_f1_pct": e.paper[0], "offset_rmse": e.paper[1]}
                          for k, e in EXPERIMENTS.items() if e.paper},
-        "mean_std": agg,
-        "trials": [{"experiment": n, "protocol": p, "trial": i, "held_out": t["held_out"],
-                    "train_windows": t["train_windows"], "val_windows": t["val_windows"],
-                    "offsets": t["offsets"].tolist(), "methods": t["methods"],
-                    "offset_mismatch": t.get("offset_mismatch"),
-                    "least_squares_error": t["least_squares"].get("error"),
-                    "least_squares_s": t.get("least_squares_s"),
-                    "figure2_check": t.get("figure2_check")}
-                   for (n, p, i), t in trials.items()],
+        "mean_std": agg, "trials": _trial_records(trials),
         "plots": plots, "table": str(args.out / "table.md")}
     (args.out / "results.json").write_text(json.dumps(out_json, indent=1, default=_default)
                                            + "\n")
@@ -449,6 +427,18 @@ def main() -> None:
                                         "offset_rmse_std": _s(s["offset_rmse"])}
                                     for m, s in pm.items()} for p, pm in pp.items()}
                             for n, pp in agg.items()}})
+
+
+def _trial_records(trials: dict) -> list[dict]:
+    """``results.json``'s ``trials``: one record per trial run."""
+    return [{"experiment": n, "protocol": p, "trial": i, "held_out": t["held_out"],
+             "train_windows": t["train_windows"], "val_windows": t["val_windows"],
+             "offsets": t["offsets"].tolist(), "methods": t["methods"],
+             "offset_mismatch": t.get("offset_mismatch"),
+             "least_squares_error": t["least_squares"].get("error"),
+             "least_squares_s": t.get("least_squares_s"),
+             "figure2_check": t.get("figure2_check")}
+            for (n, p, i), t in trials.items()]
 
 
 def _m(stat):
@@ -477,7 +467,7 @@ def _figure2(args, key, t: dict, states: dict, channels) -> Path:
     lines, start_s, check = {}, None, {}
     val = t["val"]
     for variant, (state, seeds) in states.items():
-        preds = [predict_sequence(state, window_subset(p.windows, p.indices), seeds,
+        preds = [predict_sequence(state, p.windows.subset(p.indices), seeds,
                                   inject_offset=offset) for p in val]
         lines[variant] = np.concatenate([p.per_window for p in preds])
         start_s = np.concatenate([p.start_s for p in preds])
@@ -496,7 +486,9 @@ def _figure2(args, key, t: dict, states: dict, channels) -> Path:
     title = (f"{EXPERIMENTS[name].label}, {protocol} protocol, trial {i}: held out "
              f"{', '.join(t['held_out'])}; offset 1 of {len(t['offsets'])}")
     path = args.out / f"fig2_{name}_{protocol}_{TRIAL_FORMAT.format(i)}.png"
-    return plot_figure2(path, start_s, offset, channels, lines, title)
+    return plot_offsets(path, start_s, channels, {METHODS[k]: v for k, v in lines.items()},
+                        true=offset, true_label="true (injected)", title=title,
+                        styles={METHODS[k]: FIGURE2_STYLES[k] for k in lines})
 
 
 def _settings(jobs, window, args, n_trials, trial_counts) -> dict:
@@ -536,7 +528,7 @@ def _table(agg, trials, settings, rec_budget, schedule, skipped, args) -> str:
     lines = ["# Calibrator validation protocols (Table 4 analogue)", "",
              f"- {mode_line(rec_budget, schedule, settings.get('max_epochs'), 'every fit')}.",
              f"- Model and windows: {settings.get('describe', '-')}.",
-             "- Data: simulated sequences (`uavcal_jax.calib.sim_sets`, 376x240 renders of the "
+             "- Data: simulated sequences (`uavcal_jax.sim.training_sets`, 376x240 renders of the "
              "trajectories in ../shared/data/trajectories), "
              + ("whole trajectories" if args.max_duration is None else
                 f"each capped at {args.max_duration:g} s") + ".",

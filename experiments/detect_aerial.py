@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import platform
@@ -47,9 +48,11 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
+from _bench import time_calls, time_once  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import parse_imgsz, print_json
+from uavcal_jax.config import to_dict
+from uavcal_jax.data.detection_labels import LABEL_FORMATS
 from uavcal_jax.detect.augment import AugmentConfig
 from uavcal_jax.detect.config import (
     MODELS,
@@ -58,10 +61,11 @@ from uavcal_jax.detect.config import (
     DetectorConfig,
     TrainConfig,
 )
-from uavcal_jax.detect.datasets import FORMATS, load_dataset
+from uavcal_jax.detect.datasets import load_dataset
 from uavcal_jax.detect.predict import make_predict_fn
-from uavcal_jax.detect.run import load_run
+from uavcal_jax.detect.run import RunPaths, load_run
 from uavcal_jax.detect.train import train
+from uavcal_jax.plots import training_curves_writer
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "detection" / \
     "aerial_cars_kit"
@@ -76,19 +80,11 @@ def measure_fps(det_cfg: DetectorConfig, variables, runs: int = 20, seed: int = 
     fn = make_predict_fn(det_cfg, SERVE_PREDICT)
     h, w = det_cfg.img_size
     images = jax.random.uniform(jax.random.PRNGKey(seed), (1, h, w, 3), jnp.float32)
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(variables, images))  # compile
-    compile_s = time.perf_counter() - t0
-    for _ in range(2):
-        jax.block_until_ready(fn(variables, images))
-    times = []
-    for _ in range(max(1, runs)):
-        t = time.perf_counter()
-        jax.block_until_ready(fn(variables, images))
-        times.append(time.perf_counter() - t)
-    median = float(np.median(times))
-    return {"fps": 1.0 / median, "latency_ms_median": 1e3 * median,
-            "latency_ms_mean": 1e3 * float(np.mean(times)), "compile_s": compile_s}
+    call = functools.partial(fn, variables, images)
+    _, compile_s = time_once(call)  # the first call compiles
+    timed = time_calls(call, repeats=max(1, runs), warmup=2)
+    return {"fps": 1.0 / timed.median_s, "latency_ms_median": 1e3 * timed.median_s,
+            "latency_ms_mean": 1e3 * timed.mean_s, "compile_s": compile_s}
 
 
 def model_counts(det_cfg: DetectorConfig, variables) -> dict:
@@ -147,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", default=str(DEFAULT_DATA), help="a detection data set folder "
                    "[default: ../shared/data/detection/aerial_cars_kit]")
-    p.add_argument("--format", choices=FORMATS, default=None, help="[default: detected]")
+    p.add_argument("--format", choices=LABEL_FORMATS, default=None, help="[default: detected]")
     p.add_argument("--out", default="out/detect_aerial", help="[default: out/detect_aerial]")
     p.add_argument("--models", nargs="+", choices=MODELS, default=list(TABLE_ORDER))
     p.add_argument("--epochs", type=int, default=8, help="the shared budget [default: 8]")
@@ -196,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
         resume = args.resume and (run / "config.json").is_file()
         summary = train(dataset, det_cfg, cfg, run, resume=resume,
                         max_steps_per_epoch=args.max_steps,
-                        log=lambda line: print(line, file=sys.stderr, flush=True))
+                        log=lambda line: print(line, file=sys.stderr, flush=True),
+                        on_epoch=training_curves_writer(RunPaths(run).png))
         train_s = time.perf_counter() - t0
         loaded = load_run(run)
         fps_cfg = dataclasses.replace(loaded.det_cfg, img_size=args.fps_imgsz)
@@ -230,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"plot failed: {err}", file=sys.stderr)
     result = {
         "data": str(args.data), "out": str(out), "budget": budget,
-        "train_config": cfg.to_dict(), "img_size": list(args.imgsz),
+        "train_config": to_dict(cfg), "img_size": list(args.imgsz),
         "models": [{k: v for k, v in r.items() if k != "history"} for r in rows],
         "wall_s": time.perf_counter() - t_start,
     }

@@ -44,9 +44,9 @@ import numpy as np
 
 from uavcal_jax.argtypes import print_json
 from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.plots import plot_trajectories
 from uavcal_jax.sim.cache import cached_simulation, trajectory_span
 from uavcal_jax.sim.config import SimConfig
-from uavcal_jax.vio import plot_trajectories
 from uavcal_jax.vio.run import run_vio
 from uavcal_jax.vio.trajectory_metrics import trajectory_errors
 

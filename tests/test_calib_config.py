@@ -1,5 +1,7 @@
-"""Calibrator config: paper defaults, key=value overrides, dict round trip, and the default
-model's parameter count against the PyTorch peer (../shared/tools/peer_calibrator_torch.py)."""
+"""Calibrator config: paper defaults, key=value overrides, dict round trip, the run root and
+its presets (``shipped`` is the shipped weights' configuration, read from their older layout),
+the budget mode's stride, and the default model's parameter count against the PyTorch peer
+(../shared/tools/peer_calibrator_torch.py)."""
 
 import dataclasses
 
@@ -8,9 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from uavcal_jax.calib.config import CalibConfig, ModelConfig
+from uavcal_jax.calib.config import CalibConfig, CalibRunConfig, LoopConfig, ModelConfig
+from uavcal_jax.calib.loop import read_run_config
 from uavcal_jax.calib.model import Calibrator
-from uavcal_jax.config import apply_overrides, from_dict, to_dict
+from uavcal_jax.calib.presets import PRESETS, budget_stride, resolve_configs
+from uavcal_jax.calib.pretrained import DEFAULT_WEIGHTS
+from uavcal_jax.config import UnknownConfigKey, apply_overrides, from_dict, to_dict
 from uavcal_jax.data.windows import WindowConfig
 
 PEER_PARAMS = 9_700_614  # peer_calibrator_torch.py --bench: d 256, 200 frames of 320x180
@@ -59,6 +64,48 @@ def test_dict_round_trip():
     assert from_dict(CalibConfig, d) == c
     with pytest.raises(KeyError, match="model.nope"):
         from_dict(CalibConfig, {"model": {"nope": 1}})
+
+
+def test_run_root_sections_and_round_trip():
+    run = apply_overrides(CalibRunConfig(), ["model.d_model=64", "loop.validation=loo",
+                                             "window.size=160x96"])
+    assert run.calib == apply_overrides(CalibConfig(), ["model.d_model=64"])
+    assert run.loop == LoopConfig(validation="loo") and run.window.size == (160, 96)
+    assert CalibRunConfig.of(run.calib, run.loop, run.window) == run
+    assert from_dict(CalibRunConfig, to_dict(run)) == run
+
+
+def test_presets_are_typed_and_shipped_is_the_shipped_weights():
+    assert PRESETS["paper"] == CalibRunConfig()
+    small = PRESETS["small"]
+    assert (small.model.d_model, small.window.size, small.window.frame_step) == (64, (160, 96),
+                                                                                2)
+    # the weights' config.json predates the root (sections nested under "calib")
+    assert read_run_config(DEFAULT_WEIGHTS) == PRESETS["shipped"]
+
+
+def test_resolve_preset_then_arguments_then_sets():
+    run = resolve_configs(["train.epochs=9", "window.duration=4"], preset="small",
+                          protocol="physical", epochs=3, validation="kfold")
+    assert run.train.epochs == 9 and run.injection.protocol == "physical"
+    assert run.loop.validation == "kfold" and run.window.duration == 4
+    assert run.model == PRESETS["small"].model
+    assert resolve_configs(preset=PRESETS["shipped"], arguments={"loop.val_offsets": None,
+                                                                 "train.seeds": 2}
+                           ).train.seeds == 2
+    with pytest.raises(UnknownConfigKey, match="'loop.nope'"):
+        resolve_configs(["loop.nope=1"])
+    with pytest.raises(ValueError, match="unknown preset"):
+        resolve_configs(preset="tiny")
+
+
+def test_budget_stride_is_the_modes_window_length():
+    mode = resolve_configs(preset="small")
+    run = budget_stride(resolve_configs(["window.duration=4"], preset="small"), mode,
+                        ["window.duration=4"])
+    assert run.window.duration == 4 and run.window.stride == mode.window.duration == 10
+    kept = resolve_configs(["window.stride=2"], preset="small")
+    assert budget_stride(kept, mode, ["window.stride=2"]) == kept
 
 
 def _param_count(model_config: ModelConfig) -> int:

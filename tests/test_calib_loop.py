@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from uavcal_jax.calib.checkpoint import RunCheckpoints
-from uavcal_jax.calib.config import CalibConfig
+from uavcal_jax.calib.config import CalibConfig, LoopConfig
 from uavcal_jax.calib.data import load_windows, split_windows
-from uavcal_jax.calib.loop import LoopConfig, epoch_order, fit, restore_run
+from uavcal_jax.calib.loop import epoch_order, fit, restore_run
 from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataError

@@ -32,7 +32,7 @@ SETUP = textwrap.dedent(
     """
     import jax, numpy as np
     from uavcal_jax.calib.config import CalibConfig
-from uavcal_jax.config import apply_overrides
+    from uavcal_jax.config import apply_overrides
     CONFIG = apply_overrides(CalibConfig(), [
         "model.d_model=32", "model.layers=1", "model.heads=2", "model.patch=16,16",
         "train.batch_size=4", "train.learning_rate=1e-3"])

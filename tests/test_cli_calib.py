@@ -2,7 +2,8 @@
 seeds gives 2 distinct models per trial and the mean/std over trials; a run stopped after one
 epoch and resumed ends at the uninterrupted run's parameters; eval reproduces the training
 run's validation metrics beside the mean-offset baseline; parser defaults are the
-dataclasses'; bad input (unknown --set key, short sequence, NaN IMU rows, black frames,
+dataclasses'; train, eval and predict take --set and write the configuration they ran with
+beside their results; bad input (unknown --set key, short sequence, NaN IMU rows, black frames,
 another config on resume) is one line and exit 2, or a repair with a warning."""
 
 import argparse
@@ -18,13 +19,16 @@ from uavcal_jax.calib.checkpoint import KINDS
 from uavcal_jax.calib.config import (
     FRAME_ENCODER_DTYPES,
     PROTOCOLS,
+    VALIDATIONS,
     CalibConfig,
+    CalibRunConfig,
     InjectionConfig,
+    LoopConfig,
     TrainConfig,
 )
 from uavcal_jax.calib.data import gather, load_windows
-from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig, restore_run
-from uavcal_jax.calib.protocols import PRESETS
+from uavcal_jax.calib.loop import read_run_config, restore_run
+from uavcal_jax.calib.presets import PRESETS
 from uavcal_jax.calib.train import eval_step_seeds
 from uavcal_jax.cli import build_parser, main
 from uavcal_jax.commands.calib import train_configs
@@ -63,9 +67,10 @@ def test_parser_defaults_are_the_dataclass_defaults():
                   "validation": (LoopConfig().validation, VALIDATIONS),
                   "seeds": (TrainConfig().seeds, None), "epochs": (TrainConfig().epochs, None),
                   "set": ([], None), "preset": ("paper", tuple(PRESETS))},
-        "eval": {"data": (None, None), "offsets": (None, None)},
+        "eval": {"data": (None, None), "offsets": (None, None), "set": ([], None)},
         "predict": {"checkpoint": (None, None), "kind": ("best", KINDS), "inject": (None, None),
-                    "plot": (None, None), "frame_dtype": (None, FRAME_ENCODER_DTYPES)},
+                    "plot": (None, None), "frame_dtype": (None, FRAME_ENCODER_DTYPES),
+                    "set": ([], None)},
     }
     free = {"help", "data", "out", "run", "resume", "stop_after", "json", "func", "sequence"}
     parser = build_parser()
@@ -77,7 +82,8 @@ def test_parser_defaults_are_the_dataclass_defaults():
             assert (tuple(options[dest].choices) if options[dest].choices else None) == (
                 tuple(choices) if choices else None), (action, dest)
     args = parser.parse_args(["calib", "train", "--data", "d", "--out", "o"])
-    assert train_configs(args) == (CalibConfig(), LoopConfig(), WindowConfig())
+    run = train_configs(args)
+    assert (run.calib, run.loop, run.window) == (CalibConfig(), LoopConfig(), WindowConfig())
 
 
 def _one_line(capsys, *needles):
@@ -91,12 +97,25 @@ def test_preset_settings_come_first_and_flags_and_set_win():
     parser = build_parser()
     args = parser.parse_args(["calib", "train", "--data", "d", "--out", "o", "--preset", "small",
                               "--epochs", "7", "--set", "model.d_model=32", "window.duration=4"])
-    calib, loop, window = train_configs(args)
+    run = train_configs(args)
+    calib, loop, window = run.calib, run.loop, run.window
     assert calib.model.d_model == 32 and window.duration == 4 and calib.train.epochs == 7
-    assert "model.d_model=64" in PRESETS["small"]  # the user's setting won over the preset's
+    assert PRESETS["small"].model.d_model == 64  # the user's setting won over the preset's
     assert calib.model.norm_first and calib.loss.units == "standardized"
     assert window.frame_step == 2 and window.size == (160, 96) and calib.model.patch == (32, 32)
     assert calib.injection == CalibConfig().injection and loop == LoopConfig()
+
+
+def test_flags_left_out_keep_the_presets_values():
+    parser = build_parser()
+    args = parser.parse_args(["calib", "train", "--data", "d", "--out", "o", "--preset",
+                              "shipped"])
+    assert train_configs(args) == PRESETS["shipped"]  # not the flags' (paper) defaults
+    args = parser.parse_args(["calib", "train", "--data", "d", "--out", "o", "--preset",
+                              "shipped", "--protocol", "paper", "--epochs", "3"])
+    run = train_configs(args)
+    assert run.injection.protocol == "paper" and run.train.epochs == 3
+    assert run.window == PRESETS["shipped"].window
 
 
 @pytest.mark.parametrize("key", ["nope", "window.nope", "loop.nope", "model.nope"])
@@ -106,6 +125,18 @@ def test_unknown_set_key_is_exit_2_naming_it(seqs, tmp_path, capsys, key):
     _one_line(capsys, repr(key))
     assert main([*argv[:-1], "model.d_model=abc"]) == 2
     _one_line(capsys, "model.d_model")
+
+
+@pytest.mark.parametrize("action", ["eval", "predict"])
+def test_unknown_set_key_of_eval_and_predict_is_exit_2_naming_it(seqs, tmp_path, capsys,
+                                                                  action):
+    # the shipped weights' folder is a run folder: eval and predict read its config first
+    from uavcal_jax.calib.pretrained import default_weights
+
+    argv = (["calib", "eval", str(default_weights())] if action == "eval" else
+            ["calib", "predict", "--sequence", str(seqs / "seq0")])
+    assert main([*argv, "--set", "window.nope=1"]) == 2
+    _one_line(capsys, "'window.nope'")
 
 
 def _copy(seqs, tmp_path, name="seq0"):
@@ -197,6 +228,25 @@ def test_loo_two_seeds_resume_and_eval(seqs, tmp_path, capsys):
     assert main(["calib", "eval", str(full), "--data", str(seqs / "seq1"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["trials"][0]["windows"] == 5
 
+    # config.json is the resolved root (the valid --set recorded), read back as the run's
+    trial = full / "trial_00"
+    saved = json.loads((trial / "config.json").read_text())
+    assert saved["model"]["d_model"] == 16 and saved["window"]["size"] == [64, 36]
+    assert saved["command"]["set"] == TINY and saved["command"]["action"] == "calib train"
+    run = read_run_config(trial)
+    assert isinstance(run, CalibRunConfig) and run.loop.validation == "loo"
+    assert run.train.seeds == 2 and run.model.patch == (16, 16)
+    # eval: a valid --set (what a restored model may change) is used and recorded
+    assert main(["calib", "eval", str(trial), "--offsets", "2", "--set",
+                 "train.batch_size=2", "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)["trials"][0]["offsets"]) == 2
+    record = json.loads((trial / "eval_config.json").read_text())
+    assert record["train"]["batch_size"] == 2 and record["loop"]["val_offsets"] == 2
+    assert record["command"]["set"] == ["train.batch_size=2"]
+    # ... one that changes the model is refused in one line naming it
+    assert main(["calib", "eval", str(trial), "--set", "model.d_model=32"]) == 2
+    _one_line(capsys, "model.d_model")
+
     # predict: every window of a sequence through frame-token reuse equals the full model
     _check_predict(full, seqs, tmp_path, capsys)
 
@@ -236,6 +286,9 @@ def _check_predict(full, seqs, tmp_path, capsys):
     np.testing.assert_allclose(read_offset_json(out), res["offset"])
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert res["frame_encoder_dtype"] == "float32"
+    record = json.loads((tmp_path / "offsets.config.json").read_text())
+    assert res["config"] == str(tmp_path / "offsets.config.json")
+    assert record["model"]["d_model"] == 16 and record["command"]["checkpoint"] == str(trial)
 
     # the same checkpoint with a bfloat16 frame encoder: within its rounding of the reference
     assert main(["calib", "predict", "--checkpoint", str(trial), "--sequence", str(seq),
@@ -265,3 +318,11 @@ def test_predict_real_micro_slice_with_the_shipped_weights(euroc_micro, tmp_path
     est = np.asarray(res["offset"])
     assert np.all(np.abs(est[:3]) <= 0.08) and np.all(np.abs(est[3:]) <= 0.16)
     np.testing.assert_allclose(read_offset_json(out), est)
+    # a valid --set changes the run and OUT.config.json records it
+    with pytest.warns(DataRepairWarning):
+        assert main(["calib", "predict", "--sequence", str(euroc_micro), "--out", str(out),
+                     "--set", "window.stride=1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["windows"] == int((4.7 - 2.0) / 1.0) + 1
+    record = json.loads((tmp_path / "offsets.config.json").read_text())
+    assert record["window"]["stride"] == 1.0 and record["command"]["set"] == ["window.stride=1"]
+    assert record["injection"]["protocol"] == PRESETS["shipped"].injection.protocol

@@ -64,6 +64,7 @@ def test_parser_defaults_are_the_dataclass_defaults():
     """Every option of `detect train/eval/predict` takes its default and choices from the
     configuration dataclasses and constants; a new option fails here until it is listed."""
     from uavcal_jax.commands.detect import PREDICT_BATCH, train_config
+    from uavcal_jax.data.detection_labels import LABEL_FORMATS
     from uavcal_jax.detect.augment import AugmentConfig
     from uavcal_jax.detect.config import (
         EVAL_PREDICT,
@@ -75,14 +76,13 @@ def test_parser_defaults_are_the_dataclass_defaults():
         DetectorConfig,
         TrainConfig,
     )
-    from uavcal_jax.detect.datasets import FORMATS
     from uavcal_jax.detect.run import CHECKPOINTS
 
     paper = TrainConfig()
     # dest -> (default, choices); None choices: a free value
     expected = {
         "train": {
-            "format": (None, FORMATS), "model": (DetectorConfig().model, MODELS),
+            "format": (None, LABEL_FORMATS), "model": (DetectorConfig().model, MODELS),
             "epochs": (paper.epochs, None), "imgsz": (DetectorConfig().img_size, None),
             "batch": (paper.batch_size, None), "optimizer": (paper.optimizer, OPTIMIZERS),
             "lr": (None, None), "schedule": (None, SCHEDULES),
@@ -96,7 +96,7 @@ def test_parser_defaults_are_the_dataclass_defaults():
             "workers": (paper.workers, None),
         },
         "eval": {
-            "format": (None, FORMATS), "checkpoint": ("best", CHECKPOINTS),
+            "format": (None, LABEL_FORMATS), "checkpoint": ("best", CHECKPOINTS),
             "conf": (EVAL_PREDICT.conf_thresh, None), "iou": (EVAL_PREDICT.iou_thresh, None),
             "batch": (paper.batch_size, None),
         },
@@ -107,7 +107,8 @@ def test_parser_defaults_are_the_dataclass_defaults():
     }
     # options with no configuration field behind them: paths, run control, output format
     free = {"help", "data", "out", "run", "images", "checkpoint", "val_data", "max_steps",
-            "resume", "no_export", "voc07", "json", "func"}
+            "resume", "no_export", "voc07", "json", "func",
+            "set"}  # --set: any configuration field, after the options
     parser = build_parser()
     for action_name, wanted in expected.items():
         sub = _subparser(parser, "detect", action_name)
@@ -184,3 +185,109 @@ def test_train_eval_predict_on_unseen_voc(tmp_path, capsys):
     assert main(["detect", "predict", str(data / "JPEGImages" / "img1.*"), "--checkpoint",
                  str(run), "--out", str(tmp_path / "pred1"), "--json"]) == 0
     assert _json_line(capsys.readouterr().out)["images"] == 1
+
+
+# ------------------------------------------------------------------ --set (no training)
+
+
+def _fake_run(root, **train_changes):
+    """A run folder holding only config.json (what eval and predict read first)."""
+    from uavcal_jax.detect.config import DetectorConfig, TrainConfig
+    from uavcal_jax.detect.run import RunPaths, write_config
+
+    root.mkdir(parents=True)
+    write_config(RunPaths(root), DetectorConfig(num_classes=2), TrainConfig(**train_changes),
+                 {"root": str(root), "format": "voc", "class_names": ["blue", "red"],
+                  "category_ids": [0, 1]})
+    return root
+
+
+def test_set_unknown_key_exits_2_naming_it(tmp_path, capsys):
+    run = _fake_run(tmp_path / "run")
+    for argv in (["train", "--data", str(tmp_path), "--out", str(tmp_path / "new")],
+                 ["eval", str(run)],
+                 ["predict", str(tmp_path), "--checkpoint", str(run), "--out",
+                  str(tmp_path / "pred")]):
+        assert main(["detect", *argv, "--set", "no_such_key=1"]) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "no_such_key" in err[0], argv
+    assert not (tmp_path / "new").exists() and not (tmp_path / "pred").exists()
+
+
+def test_train_set_applies_after_the_options(tmp_path, monkeypatch, capsys):
+    import uavcal_jax.detect.train as train_module
+    from uavcal_jax.detect.config import DetectConfig, DetectorConfig, TrainConfig
+    from uavcal_jax.detect.run import RunPaths, read_config, write_config
+
+    seen = {}
+
+    def fake_train(dataset, det_cfg, cfg, out_dir, **kwargs):
+        seen.update(det_cfg=det_cfg, cfg=cfg)
+        write_config(RunPaths(tmp_path / "run"), det_cfg, cfg, {"class_names": []})
+        return {"model": det_cfg.model, "epochs": 0, "map50": None}
+
+    monkeypatch.setattr(train_module, "train", fake_train)
+    data = make_voc(tmp_path / "voc", n=2)
+    assert main(["detect", "train", "--data", str(data), "--out", str(tmp_path / "run"),
+                 "--epochs", "7", "--mosaic", "0.5", "--no-export", "--json", "--set",
+                 "train.epochs=3", "detector.anchor_t=3.5", "--set",
+                 "train.augment.scale=0.25", "train.predict.conf_thresh=0.01"]) == 0
+    capsys.readouterr()
+    det_cfg, cfg = seen["det_cfg"], seen["cfg"]
+    assert (cfg.epochs, cfg.augment.mosaic, cfg.augment.scale, cfg.predict.conf_thresh) == (
+        3, 0.5, 0.25, 0.01)
+    assert det_cfg.anchor_t == 3.5 and det_cfg.num_classes == 2  # from the data set
+    # config.json (train's writer) reads back as the resolved configuration
+    assert read_config(RunPaths(tmp_path / "run"))[0] == DetectConfig(det_cfg, cfg)
+    assert TrainConfig.paper() == read_config(RunPaths(_fake_run(tmp_path / "plain")))[0].train
+    assert DetectorConfig(num_classes=2) == read_config(RunPaths(tmp_path / "plain"))[0].detector
+
+
+def test_eval_and_predict_write_their_resolved_config(tmp_path, monkeypatch, capsys):
+    import importlib
+    from types import SimpleNamespace
+
+    import uavcal_jax.detect.annotate as annotate_module
+    import uavcal_jax.detect.evaluate as evaluate_module
+    import uavcal_jax.detect.run as run_module
+    from uavcal_jax.config import read_config
+    from uavcal_jax.detect.config import DetectorConfig, PredictConfig
+
+    run = _fake_run(tmp_path / "run")
+    seen = {}
+
+    def fake_evaluate(run, data, fmt, **kwargs):
+        seen["eval"] = kwargs
+        return {"map50": 0.5, "map50_95": 0.25, "per_class": {}, "num_images": 1,
+                "data": "d"}
+
+    monkeypatch.setattr(evaluate_module, "evaluate_run", fake_evaluate)
+    assert main(["detect", "eval", str(run), "--conf", "0.2", "--json", "--set",
+                 "multi_label=false", "max_det=50"]) == 0
+    out = _json_line(capsys.readouterr().out)
+    resolved = read_config(run / "eval_config.json", PredictConfig,
+                           ignore=("checkpoint", "data", "format", "batch", "interpolation"))
+    assert out["config"] == str(run / "eval_config.json")
+    assert resolved == PredictConfig(conf_thresh=0.2, iou_thresh=0.6, multi_label=False,
+                                     max_det=50)
+    assert PredictConfig(**{k: seen["eval"][k] for k in vars(resolved)}) == resolved
+
+    def fake_annotate(predict_fn, paths, img_size, out_dir, class_names, **kwargs):
+        seen["info"] = kwargs["info"]
+        return {"out": str(out_dir), "images": len(paths), "detections": 0}
+
+    monkeypatch.setattr(run_module, "load_run", lambda run: SimpleNamespace(
+        det_cfg=DetectorConfig(num_classes=2), variables={}, data={"class_names": ["a", "b"]}))
+    # the module (the package's ``predict`` attribute is the function of that name)
+    predict_module = importlib.import_module("uavcal_jax.detect.predict")
+    monkeypatch.setattr(predict_module, "make_predict_fn", lambda det_cfg, cfg: print)
+    monkeypatch.setattr(annotate_module, "annotate_files", fake_annotate)
+    images = make_voc(tmp_path / "voc", n=1) / "JPEGImages"
+    pred = tmp_path / "pred"
+    assert main(["detect", "predict", str(images), "--checkpoint", str(run), "--out", str(pred),
+                 "--iou", "0.3", "--json", "--set", "conf_thresh=0.05", "agnostic=true"]) == 0
+    capsys.readouterr()
+    resolved = read_config(pred / "predict_config.json", PredictConfig,
+                           ignore=("checkpoint", "batch"))
+    assert resolved == PredictConfig(conf_thresh=0.05, iou_thresh=0.3, agnostic=True)
+    assert (seen["info"]["conf_thresh"], seen["info"]["iou_thresh"]) == (0.05, 0.3)

@@ -250,3 +250,32 @@ def test_rgb_frames_small_resolution(capsys, tmp_path):
     assert seq.cameras["cam1"].calibration.resolution == (64, 40)
     raw = cv2.imread(str(seq.cameras["cam1"].paths[0]), cv2.IMREAD_UNCHANGED)
     assert raw.shape == (40, 64, 3) and raw.dtype == np.uint8
+
+
+def test_set_applies_after_the_options():
+    parser = _simulate_parser()
+    args = parser.parse_args(["--out", "rec", "--duration", "3", "--seed", "4", "--set",
+                              "duration=2", "resolution=376x240", "--set", "imu_offset=none"])
+    config = config_from_args(args)
+    assert (config.duration, config.seed, config.resolution, config.imu_offset) == (
+        2.0, 4, (376, 240), None)
+    assert config_from_args(parser.parse_args(["--out", "rec", "--set", "gain=2"])
+                            ) == SimConfig(gain=2.0)
+
+
+def test_set_unknown_key_exits_2_naming_it(capsys, tmp_path):
+    code, _, err = _run(capsys, "simulate", "--out", str(tmp_path / "rec"), "--no-frames",
+                        "--set", "no_such_key=1")
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and "no_such_key" in err
+    assert not (tmp_path / "rec").exists()
+
+
+def test_set_values_are_in_sim_config_json(capsys, tmp_path):
+    out = tmp_path / "rec"
+    code, _, err = _run(capsys, "simulate", "--out", str(out), "--no-frames", "--duration",
+                        "1", "--json", "--set", "imu_rate_hz=100", "seed=5")
+    assert code == 0, err
+    resolved = json.loads((out / "sim_config.json").read_text())["config"]
+    assert (resolved["imu_rate_hz"], resolved["seed"], resolved["duration"]) == (100.0, 5, 1.0)
+    assert len(read_euroc(out).imu) == 101  # the --set rate was simulated (both ends)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from test_data_euroc import make_asl
 
-from uavcal_jax.data import read_euroc
+from uavcal_jax.data import read_euroc, read_sequence
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 T0 = 1_000_000_000_000_000_000
@@ -55,6 +55,22 @@ def test_root_without_mav0(tmp_path):
     with pytest.raises(DataError, match="mav0") as err:
         read_euroc(tmp_path / "empty")
     assert str(tmp_path / "empty") in str(err.value)
+
+
+def test_read_sequence_names_a_path_that_is_not_a_recording(tmp_path, asl):
+    with pytest.raises(DataError, match="no such file or folder") as err:
+        read_sequence(tmp_path / "nope.bag")
+    assert err.value.path == tmp_path / "nope.bag"
+    (tmp_path / "notes.txt").write_text("not a recording")
+    with pytest.raises(DataError, match="not a recording") as err:
+        read_sequence(tmp_path / "notes.txt")
+    assert err.value.path == tmp_path / "notes.txt"
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DataError, match="mav0") as err:
+        read_sequence(tmp_path / "empty")
+    assert str(tmp_path / "empty") in str(err.value)
+    seq, fmt = read_sequence(asl)
+    assert fmt == "euroc" and seq.name == read_euroc(asl).name
 
 
 @pytest.mark.parametrize("rel", [

@@ -198,3 +198,15 @@ def test_real_micro_windows(euroc_micro):
     dt = np.abs(ws.frame_t_ns[:, None] - seq.imu.t_ns[None, :])
     np.testing.assert_array_equal(ws.imu_index, np.argmin(dt, axis=1))
     assert dt.min(axis=1).max() <= 2_500_000  # 200 Hz IMU: within half a period
+
+
+def test_subset_picks_windows_and_shares_frames():
+    seq, _ = make_sequence(30.0)
+    ws = make_windows(seq, WindowConfig(duration=10.0, stride=5.0, size=(32, 24)))
+    sub = ws.subset([3, 0])
+    assert len(sub) == 2 and sub.frames is ws.frames and sub.gyro is ws.gyro
+    np.testing.assert_array_equal(sub.start_ns, ws.start_ns[[3, 0]])
+    np.testing.assert_array_equal(sub.imu_range, ws.imu_range[[3, 0]])
+    for k in ("frames", "mask", "gyro", "imu_t_ns"):
+        np.testing.assert_array_equal(sub.window(0)[k], ws.window(3)[k])
+        np.testing.assert_array_equal(sub.window(1)[k], ws.window(0)[k])

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import shared_path
+from uavcal_jax.data.detection_labels import read_coco, read_sim_targets, read_voc, read_yolo
 from uavcal_jax.detect.augment import (
     AugmentConfig,
     hflip,
@@ -21,7 +22,6 @@ from uavcal_jax.detect.augment import (
 )
 from uavcal_jax.detect.datasets import detect_format, load_dataset, split_ids
 from uavcal_jax.detect.loader import DetectionLoader
-from uavcal_jax.detect.readers import read_coco, read_sim_targets, read_voc, read_yolo
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 # ------------------------------------------------------------------------------ helpers

@@ -17,6 +17,7 @@ from uavcal_jax.detect.datasets import load_dataset
 from uavcal_jax.detect.optim import decay_mask, make_schedules, param_labels, warmup_steps
 from uavcal_jax.detect.run import load_run
 from uavcal_jax.detect.train import train
+from uavcal_jax.plots import training_curves_writer
 
 IMG = (64, 96)  # (H, W): tiny, multiples of 32
 
@@ -60,7 +61,7 @@ def tiny_runs(tmp_path_factory):
     cfg = tiny_config()
     run_a = tmp_path_factory.mktemp("run_a")
     run_b = tmp_path_factory.mktemp("run_b")
-    summary_a = train(ds, det, cfg, run_a)
+    summary_a = train(ds, det, cfg, run_a, on_epoch=training_curves_writer(run_a / "curves.png"))
     partial = train(ds, det, cfg, run_b, stop_after=2)
     summary_b = train(ds, det, cfg, run_b, resume=True)
     return ds, det, cfg, run_a, run_b, summary_a, partial, summary_b

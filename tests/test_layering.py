@@ -1,6 +1,7 @@
 """The import layering of ARCHITECTURE.md holds: ``cli``/``commands``/``experiments`` -> task
 packages -> ``sim`` -> ``data`` -> ``imu`` -> ``geometry`` -> base modules (the import-linter
-contract in ``pyproject.toml``), and the experiment scripts never import the CLI's commands."""
+contract in ``pyproject.toml``), the experiment scripts never import the CLI's commands, and the
+commands never import each other."""
 
 from __future__ import annotations
 
@@ -46,3 +47,25 @@ def test_experiments_do_not_import_commands():
     }
     offenders = {name: mods for name, mods in offenders.items() if mods}
     assert not offenders, f"experiments import the CLI's commands: {offenders}"
+
+
+def test_commands_do_not_import_each_other():
+    # also the import-linter independence contract; this one runs without the dev dependency
+    modules = sorted((ROOT / "uavcal_jax" / "commands").glob("*.py"))
+    assert len(modules) > 2, "no command modules found"
+    offenders = {
+        module.name: sorted(m for m in _imported_modules(module)
+                            if m == "uavcal_jax.commands" or m.startswith("uavcal_jax.commands."))
+        for module in modules
+    }
+    offenders = {name: mods for name, mods in offenders.items() if mods}
+    assert not offenders, f"commands import other commands: {offenders}"
+
+
+def test_only_the_plots_module_draws():
+    # figures are drawn at the edge (uavcal_jax/plots.py), never in the task packages
+    package = ROOT / "uavcal_jax"
+    drawing = sorted(str(path.relative_to(package)) for path in package.rglob("*.py")
+                     if any(m == "matplotlib" or m.startswith("matplotlib.")
+                            for m in _imported_modules(path)))
+    assert drawing == ["plots.py"], f"modules importing matplotlib: {drawing}"

@@ -5,12 +5,12 @@ sets cover each trajectory within its span."""
 import json
 
 import pytest
-from conftest import shared_path
+from conftest import SHARED_DATA, shared_path
 
-from uavcal_jax.calib.sim_sets import SimSetConfig, sequence_configs
 from uavcal_jax.data.tum import read_tum
 from uavcal_jax.sim.cache import cached_simulation, config_tag
 from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.training_sets import SimSetConfig, sequence_configs
 
 TINY = SimConfig(duration=0.3, resolution=(32, 24), camera_rate_hz=10, depth=False,
                  targets=False, seed=3)
@@ -40,13 +40,13 @@ def test_a_killed_render_is_not_reused(tmp_path):
 @pytest.mark.parametrize("family", ["euroc", "uzh_fpv"])
 def test_trajectory_sets_cover_each_trajectory(family):
     folder = shared_path("trajectories", family)
-    configs = sequence_configs(SimSetConfig(family=family))
+    configs = sequence_configs(SimSetConfig(family=family), SHARED_DATA)
     assert [n for n, _ in configs] == sorted(p.stem for p in folder.glob("*.txt"))
     for _, cfg in configs:
         gt = read_tum(cfg.trajectory)
         span = (gt.t_ns[-1] - gt.t_ns[0]) * 1e-9
         assert span - 0.2 <= cfg.duration <= span
-    capped = sequence_configs(SimSetConfig(family=family, max_duration=5.0))
+    capped = sequence_configs(SimSetConfig(family=family, max_duration=5.0), SHARED_DATA)
     assert all(cfg.duration == 5.0 for _, cfg in capped)
     with pytest.raises(ValueError, match="unknown"):
-        sequence_configs(SimSetConfig(family=family, sequences=("nope",)))
+        sequence_configs(SimSetConfig(family=family, sequences=("nope",)), SHARED_DATA)

@@ -17,8 +17,8 @@ from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.euroc_rig import euroc_camera, euroc_T_C0C1
 from uavcal_jax.data.sequence import CameraCalibration
 from uavcal_jax.geometry.camera import pixels_to_normalized
+from uavcal_jax.vio.config import NOMINAL_FOCAL_PX, FrontendConfig, KeyframeConfig
 from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures, reject_outliers
-from uavcal_jax.vio.frontend_config import FrontendConfig, KeyframeConfig
 from uavcal_jax.vio.keyframes import (
     body_to_camera_rotation,
     compensated_parallax,
@@ -253,7 +253,7 @@ def test_ransac_rejects_matches_off_the_epipolar_geometry(method):
     X0 = np.c_[rng.uniform(-3, 3, (n, 2)), rng.uniform(2.0, 8.0, n)]
     R, t = _rotation([0.3, 1.0, 0.2], np.radians(4.0)), np.array([0.15, -0.05, 0.1])
     X1 = (X0 - t) @ R  # X1 = R^T (X0 - t)
-    f = FrontendConfig().virtual_focal_px
+    f = NOMINAL_FOCAL_PX
     xy0 = _normalised(X0) + rng.normal(0, 0.2 / f, (n, 2))
     xy1 = _normalised(X1) + rng.normal(0, 0.2 / f, (n, 2))
     E = np.cross(np.eye(3), t) @ R  # x0^T E x1 = 0
@@ -405,7 +405,7 @@ def test_translation_makes_a_keyframe_and_small_motion_does_not():
         d = keyframe_decision(ids, xy_kf, ids, _normalised(pts_cur), mask, R)
         assert d.is_keyframe is expect, d
         # Mean parallax of a sideways move: baseline / depth, times the nominal focal.
-        approx = np.mean(baseline / pts_kf[:, 2]) * KeyframeConfig().focal_px
+        approx = np.mean(baseline / pts_kf[:, 2]) * NOMINAL_FOCAL_PX
         assert d.parallax_px == pytest.approx(approx, rel=0.35)
 
 

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from uavcal_jax.imu import preintegrate
+from uavcal_jax.imu import EUROC_ADIS16448, preintegrate
 from uavcal_jax.vio import (
     CostConfig,
     ImuSamples,
@@ -286,7 +286,7 @@ def test_drop_after_marginalisation_marginalises_the_prior(solved, x64):
     x2, p2 = marginalize_oldest(x, w.problem, w.params)
     # slots 0 .. N - 2 in use and all in the prior; drop slot N - 3, the newest moves down
     _, p3, _ = drop_second_newest(x2, p2, slide_imu_samples(_window_samples()[3]),
-                                  params=w.params)
+                                  EUROC_ADIS16448, w.params)
     J, r = np.asarray(p2.prior.J), np.asarray(p2.prior.r)
     H, g = J.T @ J, J.T @ r
     k, n = N - 3, N - 2
@@ -316,7 +316,7 @@ def test_drop_second_newest(solved, x64):
     np.testing.assert_allclose(np.asarray(preintegrate(samples.dt, samples.gyro, samples.accel,
                                                        mask=samples.mask).delta_p),
                                np.asarray(w.problem.imu.pim.delta_p), rtol=0, atol=1e-15)
-    x2, p2, s2 = drop_second_newest(x, w.problem, samples, params=w.params)
+    x2, p2, s2 = drop_second_newest(x, w.problem, samples, EUROC_ADIS16448, w.params)
     k = N - 2
     ref = preintegrate(np.concatenate([dt[k - 1], dt[k]]), np.concatenate([gyro[k - 1], gyro[k]]),
                        np.concatenate([accel[k - 1], accel[k]]))

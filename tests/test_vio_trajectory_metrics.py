@@ -212,9 +212,11 @@ def test_bad_input_raises_data_error():
 def test_plot_writes_png(tmp_path):
     import matplotlib.image
 
+    from uavcal_jax.plots import plot_trajectories
+
     gt = _synthetic_truth(120)
     est, _, _ = _perturb(gt, np.random.default_rng(5), sigma_p=0.03, sigma_r=0.001)
-    path = tm.plot_trajectories(est, gt, tmp_path / "plots" / "traj.png", title="synthetic")
+    path = plot_trajectories(est, gt, tmp_path / "plots" / "traj.png", title="synthetic")
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
     image = matplotlib.image.imread(path)

@@ -67,13 +67,20 @@ def _hints(cls) -> dict[str, Any]:
 
 
 def _leaf_types(cls, prefix: str = "") -> dict[str, Any]:
-    """``{"section.field": type hint}`` of every leaf of the dataclass tree ``cls``."""
+    """``{"section.field": type hint}`` of every leaf of the dataclass tree ``cls``. An
+    optional section (``Section | None``) is a key of its own (set to ``none``) besides its
+    fields."""
     out: dict[str, Any] = {}
     hints = _hints(cls)
     for f in dataclasses.fields(cls):
         hint = hints[f.name]
+        section = next((a for a in typing.get_args(hint) if dataclasses.is_dataclass(a)),
+                       None) if _is_optional(hint) else None
         if dataclasses.is_dataclass(hint):
             out |= _leaf_types(hint, f"{prefix}{f.name}.")
+        elif section is not None:
+            out[prefix + f.name] = hint
+            out |= _leaf_types(section, f"{prefix}{f.name}.")
         else:
             out[prefix + f.name] = hint
     return out
@@ -102,8 +109,10 @@ def _command_line_value(text: str, hint) -> Any:
     stripped = text.strip()
     if _is_optional(hint) and stripped.lower() in ("none", "null"):
         return None
-    if _is_tuple(hint) and not stripped.startswith("["):
-        return [p.strip() for p in stripped.replace("x", ",").split(",") if p.strip()]
+    if _is_tuple(hint):
+        inner = stripped[1:-1] if stripped.startswith("[") and stripped.endswith("]") else (
+            stripped.replace("x", ","))
+        return [p.strip() for p in inner.split(",") if p.strip()]
     return stripped
 
 

@@ -24,6 +24,7 @@ import jax
 import orbax.checkpoint as ocp
 from absl import logging as absl_logging
 
+from uavcal_jax.calib.config import run_layout
 from uavcal_jax.errors import DataError
 
 __all__ = ["FORMAT_VERSION", "KINDS", "RESUMABLE_KEYS", "RunCheckpoints", "config_differences"]
@@ -33,9 +34,10 @@ FORMAT_VERSION = 2
 #: The two checkpoint series of a run.
 KINDS = ("last", "best")
 #: Configuration keys a restored checkpoint may differ in: the epoch budget (a resumed run
-#: may train longer) and the frame encoder's operand type (a numerics choice: the parameters
-#: mean the same under either; checkpoints written before the field existed lack it).
-RESUMABLE_KEYS = frozenset({"calib.train.epochs", "calib.model.frame_encoder_dtype"})
+#: may train longer), the frame encoder's operand type (a numerics choice: the parameters
+#: mean the same under either; checkpoints written before the field existed lack it) and the
+#: frame-decoding threads (checkpoints written before the run config root lack them).
+RESUMABLE_KEYS = frozenset({"train.epochs", "model.frame_encoder_dtype", "window.workers"})
 
 
 def _flatten(tree: Any, prefix: str = "") -> dict[str, Any]:
@@ -130,10 +132,14 @@ class RunCheckpoints:
         return epoch, dict(out["meta"])
 
     def restore(self, kind: str, abstract_tree: Any, config: Mapping,
-                epoch: int | None = None) -> tuple[Any, dict]:
+                epoch: int | None = None, ignore: frozenset[str] = RESUMABLE_KEYS
+                ) -> tuple[Any, dict]:
         """``(tree, meta)`` of a saved step into the structure of ``abstract_tree`` (arrays
         or ``jax.ShapeDtypeStruct``), after checking that it was written with the format
-        version and configuration ``config`` (a dict; :data:`RESUMABLE_KEYS` may differ).
+        version and configuration ``config`` (a dict in the layout of
+        :class:`~uavcal_jax.calib.config.CalibRunConfig`; saved configurations of the older
+        layout are read too, :func:`~uavcal_jax.calib.config.run_layout`); the keys in
+        ``ignore`` may differ.
 
         Raises:
             DataError: no checkpoint, another format version, another configuration, or a
@@ -144,7 +150,7 @@ class RunCheckpoints:
         if version != FORMAT_VERSION:
             raise DataError(f"{kind} checkpoint {epoch} has format version {version}, this "
                             f"version reads {FORMAT_VERSION}", self.run_dir)
-        diff = config_differences(meta.get("config", {}), config)
+        diff = config_differences(run_layout(meta.get("config", {})), config, ignore)
         if diff:
             raise DataError(f"{kind} checkpoint {epoch} was written with another configuration "
                             f"({'; '.join(diff)})", self.run_dir)

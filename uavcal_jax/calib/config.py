@@ -1,29 +1,52 @@
-"""Configuration of the IMU-offset transformer (Avola et al., Sensors 2023, 23, 2655).
+"""Configuration of a calibrator run (Avola et al., Sensors 2023, 23, 2655): one typed root.
+
+:class:`CalibRunConfig` is the root of every ``--set`` key and of a run's ``config.json``:
+
+- ``model``, ``loss``, ``injection``, ``train``: the network and its training
+  (:class:`CalibConfig`, what the jitted steps carry);
+- ``loop``: run control around the steps (:class:`LoopConfig`: early stopping, checkpoints,
+  the validation scheme);
+- ``window``: how recordings are cut into windows
+  (:class:`uavcal_jax.data.windows.WindowConfig`: 10 s windows, 1 s stride, 320x180 frames,
+  gray or RGB decoding); the model reads frame size and frames per window from the arrays
+  it is given.
 
 Frozen dataclasses; every default is the paper's (section 3, Table 2) unless its docstring
-says otherwise. The window geometry (10 s windows, 1 s stride, 320x180 frames, gray or RGB
-decoding) is *not* repeated here: it lives in :class:`uavcal_jax.data.windows.WindowConfig`,
-and the model reads frame size and frames per window from the arrays it is given.
+says otherwise. Words: the *protocol* is the offset-injection protocol
+(``injection.protocol``: paper, symmetric, physical); the *validation scheme* is how windows
+are split into training and validation (``loop.validation``: split, loo, kfold).
 
-Overrides, JSON and presets: :mod:`uavcal_jax.config` and :mod:`uavcal_jax.calib.protocols`.
+A run's ``config.json`` is :func:`uavcal_jax.config.to_dict` of the root plus
+:data:`RUN_EXTRAS`; runs written before the root nest the first four sections under
+``"calib"`` (:func:`run_layout` reads both). Overrides and JSON: :mod:`uavcal_jax.config`;
+named presets: :mod:`uavcal_jax.calib.presets`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+
+from uavcal_jax.data.windows import WindowConfig
 
 __all__ = [
     "ACTIVATIONS",
     "FRAME_ENCODER_DTYPES",
     "FRAME_TOKENS",
-    "PROTOCOLS",
     "LOSS_UNITS",
+    "MONITORS",
+    "PROTOCOLS",
+    "RUN_EXTRAS",
     "SIGN_TERMS",
+    "VALIDATIONS",
     "CalibConfig",
+    "CalibRunConfig",
     "InjectionConfig",
+    "LoopConfig",
     "LossConfig",
     "ModelConfig",
     "TrainConfig",
+    "run_layout",
 ]
 
 ACTIVATIONS = ("relu", "gelu")
@@ -31,7 +54,15 @@ FRAME_TOKENS = ("learned", "first_patch")
 FRAME_ENCODER_DTYPES = ("float32", "bfloat16")
 SIGN_TERMS = ("sign", "tanh")
 LOSS_UNITS = ("si", "standardized")
+#: Offset-injection protocols (``injection.protocol``).
 PROTOCOLS = ("paper", "symmetric", "physical")
+#: Early-stopping criteria (``loop.monitor``).
+MONITORS = ("train", "val")
+#: Validation schemes (``loop.validation``).
+VALIDATIONS = ("split", "loo", "kfold")
+#: Entries of a run's ``config.json`` beside the settings: derived from the windows
+#: (``frames_per_window``, ``frame_shape``) or the command's other inputs (``command``).
+RUN_EXTRAS = ("frames_per_window", "frame_shape", "command")
 
 
 @dataclass(frozen=True)
@@ -160,7 +191,7 @@ class LossConfig:
 
 @dataclass(frozen=True)
 class InjectionConfig:
-    """How training/validation offsets are drawn (section 3.4, eq. 12).
+    """How training/validation offsets are drawn (section 3.4, eq. 12): the injection protocol.
 
     Attributes:
         protocol: ``"paper"``: per channel ``o ~ N(mu, n_m * sigma^2)`` (variance ``n_m``
@@ -232,11 +263,87 @@ class TrainConfig:
 
 
 @dataclass(frozen=True)
+class LoopConfig:
+    """Run control around the steps (:mod:`uavcal_jax.calib.loop`).
+
+    Attributes:
+        monitor: early stopping and best-model criterion: ``"train"`` (section 4.4: the
+            epoch's training loss) or ``"val"`` (validation loss).
+        keep: last checkpoints kept (plus the best).
+        validation: the validation scheme: ``"split"`` (fixed random split over windows),
+            ``"loo"`` (leave one sequence out), ``"kfold"`` (contiguous blocks of windows).
+        val_fraction: the split's validation share (0.2: the ablation's 80/20).
+        split_seed: seed of the split.
+        folds: ``k`` of k-fold.
+        val_offsets: offsets per validation: the validation windows are evaluated once per
+            offset, each shared by every window (the paper's one offset per trial), and the
+            metrics pooled. 1 is the paper's single draw; its figures then hang on that
+            draw's luck (a draw near the training mean flatters the mean-offset baseline).
+    """
+
+    monitor: str = "train"
+    keep: int = 2
+    validation: str = "split"
+    val_fraction: float = 0.2
+    split_seed: int = 0
+    folds: int = 5
+    val_offsets: int = 8
+
+    def __post_init__(self) -> None:
+        if self.monitor not in MONITORS:
+            raise ValueError(f"monitor must be one of {MONITORS}, got {self.monitor!r}")
+        if self.validation not in VALIDATIONS:
+            raise ValueError(f"validation must be one of {VALIDATIONS}, "
+                             f"got {self.validation!r}")
+        if (self.keep < 1 or self.folds < 2 or self.val_offsets < 1
+                or not 0.0 < self.val_fraction < 1.0):
+            raise ValueError("keep, val_offsets must be >= 1, folds >= 2 and val_fraction in "
+                             "(0, 1)")
+
+
+@dataclass(frozen=True)
 class CalibConfig:
-    """The whole calibrator configuration: one section per concern."""
+    """The network and its training, one section per concern: what a
+    :class:`~uavcal_jax.calib.train.CalibState` carries (static) and the jitted steps read."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     injection: InjectionConfig = field(default_factory=InjectionConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
+
+
+@dataclass(frozen=True)
+class CalibRunConfig:
+    """A calibrator run's whole configuration: the root of ``--set`` keys
+    (``model.d_model=64``, ``loop.validation=loo``, ``window.size=160x96``) and of a run's
+    ``config.json``. The first four sections are :class:`CalibConfig`'s (:attr:`calib`)."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    injection: InjectionConfig = field(default_factory=InjectionConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
+    window: WindowConfig = field(default_factory=WindowConfig)
+
+    @property
+    def calib(self) -> CalibConfig:
+        """The network-and-training sections."""
+        return CalibConfig(**{f.name: getattr(self, f.name) for f in fields(CalibConfig)})
+
+    @classmethod
+    def of(cls, calib: CalibConfig, loop: LoopConfig | None = None,
+           window: WindowConfig | None = None) -> CalibRunConfig:
+        """The root of ``calib``'s sections, ``loop`` and ``window`` (``None``: defaults)."""
+        return cls(**{f.name: getattr(calib, f.name) for f in fields(CalibConfig)},
+                   loop=LoopConfig() if loop is None else loop,
+                   window=WindowConfig() if window is None else window)
+
+
+def run_layout(stored: Mapping) -> dict:
+    """A stored run record (``config.json``, a checkpoint's ``meta["config"]``) in the root's
+    layout: records written before :class:`CalibRunConfig` (the shipped weights among them)
+    nest ``model``, ``loss``, ``injection`` and ``train`` under ``"calib"``; they are lifted to
+    the top. :data:`RUN_EXTRAS` entries are kept."""
+    nested = stored.get("calib", {})
+    return {**nested, **{k: v for k, v in stored.items() if k != "calib"}}
 

@@ -13,16 +13,16 @@
 - :func:`gather`: model inputs (:func:`uavcal_jax.calib.batch.model_batch`) of windows picked
   by flat index over a list of ``Windows``, padded to a fixed batch with ``weight`` 0 rows so
   that the last short batch does not cost a new compile.
-- Validation protocols: :func:`split_windows` (the fixed random split over windows),
-  :func:`leave_one_out` (one trial per sequence) and :func:`kfold_windows` (contiguous blocks
-  of windows, so overlapping neighbours mostly stay on one side).
+- Validation schemes (``loop.validation``): :func:`split_windows` (the fixed random split
+  over windows), :func:`leave_one_out` (one trial per sequence) and :func:`kfold_windows`
+  (contiguous blocks of windows, so overlapping neighbours mostly stay on one side).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -35,7 +35,7 @@ from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.windows import WindowConfig, WindowSet, make_windows
 from uavcal_jax.errors import DataError, DataRepairWarning
 
-__all__ = ["Windows", "as_windows", "find_sequences", "gather", "kfold_windows",
+__all__ = ["Windows", "as_windows", "count_windows", "find_sequences", "gather", "kfold_windows",
            "leave_one_out", "load_windows", "mask_black_frames", "split_windows",
            "training_statistics"]
 
@@ -142,7 +142,8 @@ def training_statistics(parts: list[Windows], channels: int, sensor: str) -> Imu
     return imu_statistics(np.concatenate(samples))
 
 
-def _count(parts: list[Windows]) -> int:
+def count_windows(parts: Iterable[Windows]) -> int:
+    """Windows in ``parts`` (the sum of their ``indices``' lengths)."""
     return int(sum(len(p.indices) for p in parts))
 
 
@@ -158,7 +159,7 @@ def split_windows(parts: list[Windows], val_fraction: float, seed: int
                   ) -> list[tuple[list[Windows], list[Windows]]]:
     """One trial: a fixed random ``val_fraction`` of all windows for validation (the
     ablation's 80/20 split; overlapping windows share frames across it)."""
-    n = _count(parts)
+    n = count_windows(parts)
     n_val = int(round(val_fraction * n))
     if n_val < 1 or n_val >= n:
         raise DataError(f"a {val_fraction:g} validation split of {n} windows leaves a side "
@@ -176,7 +177,7 @@ def leave_one_out(parts: list[Windows]) -> list[tuple[list[Windows], list[Window
 
 def kfold_windows(parts: list[Windows], folds: int) -> list[tuple[list[Windows], list[Windows]]]:
     """``folds`` trials over contiguous blocks of the concatenated windows."""
-    n = _count(parts)
+    n = count_windows(parts)
     if not 2 <= folds <= n:
         raise DataError(f"{folds}-fold validation needs 2 <= folds <= windows ({n})")
     blocks = np.array_split(np.arange(n), folds)

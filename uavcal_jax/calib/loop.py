@@ -7,25 +7,26 @@ draws what the uninterrupted one drew: the epoch's window order from ``(seed, ep
 step key of seed ``k`` (offsets and dropout) from ``(seed, k, global step)``, the inits from
 ``(seed, k)``, the validation set's one offset from ``seed``.
 
-Run folder ``run_dir``: ``config.json`` (the resolved :class:`CalibConfig`, the
-:class:`LoopConfig` and the window geometry), ``metrics.jsonl`` (one JSON row per epoch:
+Run folder ``run_dir``: ``config.json`` (the resolved
+:class:`~uavcal_jax.calib.config.CalibRunConfig`, its frames per window and frame shape, and the
+caller's other inputs; :func:`read_run_config`), ``metrics.jsonl`` (one JSON row per epoch:
 training loss per seed and their mean, validation loss and eq. 19-23 metrics, time) and
 ``checkpoints/{last,best}`` (:mod:`uavcal_jax.calib.checkpoint`). A checkpoint is written
 after each epoch's metrics row, so a resumed run first drops rows newer than its checkpoint.
 
 Early stopping (section 4.4): after ``train.patience`` epochs without improvement of the
-monitored loss (``LoopConfig.monitor``: the epoch's training loss, the paper, or the
+monitored loss (``loop.monitor``: the epoch's training loss, the paper, or the
 validation loss), the mean over seeds. ``best`` is the epoch of the lowest monitored loss.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import shutil
 import time
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +35,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax.calib.baselines import mean_offset
-from uavcal_jax.calib.checkpoint import RunCheckpoints
-from uavcal_jax.calib.config import CalibConfig
+from uavcal_jax.calib.checkpoint import RESUMABLE_KEYS, RunCheckpoints
+from uavcal_jax.calib.config import (
+    RUN_EXTRAS,
+    CalibConfig,
+    CalibRunConfig,
+    LoopConfig,
+    run_layout,
+)
 from uavcal_jax.calib.data import Windows, as_windows, gather, training_statistics
 from uavcal_jax.calib.inject import ImuStats, training_offsets, validation_offsets
 from uavcal_jax.calib.metrics import calibration_metrics, metrics_from_sums
@@ -50,60 +57,25 @@ from uavcal_jax.calib.train import (
     train_step,
     train_step_seeds,
 )
-from uavcal_jax.config import apply_overrides, from_dict, to_dict
-from uavcal_jax.data.windows import WindowConfig
+from uavcal_jax.config import apply_overrides, from_dict, to_dict, write_config
 from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress as progress_bar
 
-__all__ = ["MONITORS", "VALIDATIONS", "FitResult", "LoopConfig", "epoch_order", "evaluate",
+__all__ = ["INFERENCE_KEYS", "RUN_CONFIG_FILE", "FitResult", "epoch_order", "evaluate",
            "export_weights", "fit", "mean_offset_baseline", "read_run_config",
            "resolved_config", "restore_run", "validation_draws"]
 
-MONITORS = ("train", "val")
-VALIDATIONS = ("split", "loo", "kfold")
+#: A run folder's configuration (:func:`read_run_config`).
+RUN_CONFIG_FILE = "config.json"
+#: Settings in which a model restored to evaluate or predict (:func:`restore_run`) may differ
+#: from its checkpoint, besides ``RESUMABLE_KEYS``: what is done with the model, not what it
+#: is (run control, the batch size, where windows start, how many real frames one needs).
+INFERENCE_KEYS = RESUMABLE_KEYS | {f"loop.{f.name}" for f in fields(LoopConfig)} | {
+    "train.batch_size", "window.stride", "window.min_valid_fraction"}
 # Purposes folded into the base key (one stream each).
 _INIT, _STEP, _ORDER, _VAL, _BASELINE = range(5)
 #: Offsets drawn to estimate the training distribution's mean (the mean-offset baseline).
 BASELINE_DRAWS = 4096
-
-
-@dataclass(frozen=True)
-class LoopConfig:
-    """Run control around the steps (``--set loop.<field>=...`` on the CLI).
-
-    Attributes:
-        monitor: early stopping and best-model criterion: ``"train"`` (section 4.4: the
-            epoch's training loss) or ``"val"`` (validation loss).
-        keep: last checkpoints kept (plus the best).
-        validation: the CLI's protocol: ``"split"`` (fixed random split over windows),
-            ``"loo"`` (leave one sequence out), ``"kfold"`` (contiguous blocks of windows).
-        val_fraction: the split's validation share (0.2: the ablation's 80/20).
-        split_seed: seed of the split.
-        folds: ``k`` of k-fold.
-        val_offsets: offsets per validation: the validation windows are evaluated once per
-            offset, each shared by every window (the paper's one offset per trial), and the
-            metrics pooled. 1 is the paper's single draw; its figures then hang on that
-            draw's luck (a draw near the training mean flatters the mean-offset baseline).
-    """
-
-    monitor: str = "train"
-    keep: int = 2
-    validation: str = "split"
-    val_fraction: float = 0.2
-    split_seed: int = 0
-    folds: int = 5
-    val_offsets: int = 8
-
-    def __post_init__(self) -> None:
-        if self.monitor not in MONITORS:
-            raise ValueError(f"monitor must be one of {MONITORS}, got {self.monitor!r}")
-        if self.validation not in VALIDATIONS:
-            raise ValueError(f"validation must be one of {VALIDATIONS}, "
-                             f"got {self.validation!r}")
-        if (self.keep < 1 or self.folds < 2 or self.val_offsets < 1
-                or not 0.0 < self.val_fraction < 1.0):
-            raise ValueError("keep, val_offsets must be >= 1, folds >= 2 and val_fraction in "
-                             "(0, 1)")
 
 
 @dataclass
@@ -115,14 +87,16 @@ class FitResult:
     summary: dict
 
 
-def resolved_config(config: CalibConfig, loop: LoopConfig, windows: list[Windows]) -> dict:
-    """What ``config.json`` records and a checkpoint must match to be restored."""
+def _window_shape(windows: list[Windows]) -> dict:
     ws = windows[0].windows
-    window = {k: (list(v) if isinstance(v, tuple) else v)
-              for k, v in dataclasses.asdict(ws.config).items() if k != "workers"}
-    return {"calib": to_dict(config), "loop": dataclasses.asdict(loop),
-            "window": window, "frames_per_window": ws.frames_per_window,
-            "frame_shape": list(ws.frames.shape[1:])}
+    return {"frames_per_window": ws.frames_per_window, "frame_shape": list(ws.frames.shape[1:])}
+
+
+def resolved_config(run: CalibRunConfig, windows: list[Windows]) -> dict:
+    """What ``config.json`` records (besides the caller's inputs) and a checkpoint must match
+    to be restored: the root's :func:`~uavcal_jax.config.to_dict` and the frames per window
+    and frame shape of ``windows`` (cut with ``run.window``)."""
+    return {**to_dict(run), **_window_shape(windows)}
 
 
 def _root(config: CalibConfig) -> jax.Array:
@@ -234,41 +208,50 @@ def evaluate(state: CalibState, parts: list[Windows], seeds: int, *,
             "offsets": offsets.tolist(), "windows": n}
 
 
-def read_run_config(run_dir: str | Path) -> tuple[CalibConfig, LoopConfig, WindowConfig, dict]:
-    """``(config, loop, window, resolved)`` from a run folder's ``config.json``."""
-    path = Path(run_dir) / "config.json"
+def read_run_config(run_dir: str | Path) -> CalibRunConfig:
+    """The :class:`~uavcal_jax.calib.config.CalibRunConfig` of a run folder's ``config.json``
+    (either layout: :func:`~uavcal_jax.calib.config.run_layout`).
+
+    Raises:
+        DataError: no or an unreadable ``config.json``, or settings the root does not have.
+    """
+    path = Path(run_dir) / RUN_CONFIG_FILE
     if not path.is_file():
-        raise DataError("not a calib run folder (no config.json)", run_dir)
+        raise DataError(f"not a calib run folder (no {RUN_CONFIG_FILE})", run_dir)
     try:
-        saved = json.loads(path.read_text())
-        config = from_dict(CalibConfig, saved["calib"])
-        loop = LoopConfig(**saved["loop"])
-        window = WindowConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                 for k, v in saved["window"].items()})
-    except (KeyError, TypeError, ValueError) as err:
-        raise DataError(f"config.json does not describe a calib run ({err})", path) from None
-    return config, loop, window, saved
+        stored = json.loads(path.read_text())
+        settings = {k: v for k, v in run_layout(stored).items() if k not in RUN_EXTRAS}
+        return from_dict(CalibRunConfig, settings)
+    except (ValueError, AttributeError) as err:  # ConfigError and JSONDecodeError included
+        raise DataError(f"{RUN_CONFIG_FILE} does not describe a calib run ({err})",
+                        path) from None
 
 
-def _restore(run_dir: str | Path, parts: list[Windows], kind: str) -> tuple[dict, dict, int]:
-    """``(tree, meta, seeds)`` of a run folder's ``kind`` checkpoint."""
-    config, loop, _, _ = read_run_config(run_dir)
-    seeds = config.train.seeds
+def _restore(run_dir: str | Path, parts: list[Windows], kind: str,
+             run: CalibRunConfig | None = None) -> tuple[dict, dict, int]:
+    """``(tree, meta, seeds)`` of a run folder's ``kind`` checkpoint, restored under ``run``
+    (default the run's own configuration)."""
+    run = read_run_config(run_dir) if run is None else run
+    config, seeds = run.calib, run.train.seeds
     stats = training_statistics(parts, config.model.imu_channels,
                                 config.injection.single_sensor)
     abstract = {"state": _init_state(config, parts, stats, seeds, abstract=True),
                 "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
-    with RunCheckpoints(run_dir, keep=loop.keep, read_only=True) as ckpt:
-        tree, meta = ckpt.restore(kind, abstract, resolved_config(config, loop, parts))
+    with RunCheckpoints(run_dir, keep=run.loop.keep, read_only=True) as ckpt:
+        tree, meta = ckpt.restore(kind, abstract, resolved_config(run, parts),
+                                  ignore=INFERENCE_KEYS)
     return tree, meta, seeds
 
 
-def restore_run(run_dir: str | Path, parts: list[Windows], kind: str = "best"
-                ) -> tuple[CalibState, int]:
+def restore_run(run_dir: str | Path, parts: list[Windows], kind: str = "best",
+                run: CalibRunConfig | None = None) -> tuple[CalibState, int]:
     """``(state, seeds)`` of a run folder's ``kind`` checkpoint (``"best"`` or ``"last"``);
     ``parts`` (windows cut with the run's window configuration) fix the input shapes and
-    must match the run's (one-line :class:`DataError` otherwise)."""
-    tree, _, seeds = _restore(run_dir, parts, kind)
+    must match the run's (one-line :class:`DataError` otherwise). ``run``: the configuration
+    to restore under (the run's own, :func:`read_run_config`, with a command's ``--set``);
+    it must match the checkpoint's but for :data:`INFERENCE_KEYS` (one-line
+    :class:`DataError` naming the differences otherwise), and the state carries it."""
+    tree, _, seeds = _restore(run_dir, parts, kind, run)
     return tree["state"], seeds
 
 
@@ -286,7 +269,7 @@ def export_weights(run_dir: str | Path, target: str | Path, parts: list[Windows]
     tmp = target.with_name(f".{target.name}.partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    shutil.copy2(run_dir / "config.json", tmp / "config.json")
+    shutil.copy2(run_dir / RUN_CONFIG_FILE, tmp / RUN_CONFIG_FILE)
     with RunCheckpoints(tmp, keep=1) as out:
         out.save(kind, int(meta["epoch"]), tree, {**meta, "exported_from": str(run_dir)})
     shutil.rmtree(tmp / "checkpoints" / ("last" if kind == "best" else "best"))
@@ -310,7 +293,8 @@ def _summary_row(row: dict) -> dict:
 
 def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
         seeds: int | None = None, resume: bool = False, progress: bool = True,
-        loop: LoopConfig = LoopConfig(), stop_after: int | None = None) -> FitResult:
+        loop: LoopConfig | None = None, stop_after: int | None = None,
+        inputs: Mapping[str, Any] | None = None) -> FitResult:
     """Train ``config`` on ``train_windows``, validate on ``val_windows`` each epoch.
 
     Args:
@@ -322,14 +306,18 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
         resume: continue from the last checkpoint (same configuration; ``train.epochs`` may
             differ); the result equals that of an uninterrupted run.
         progress: tqdm bars on stderr.
+        loop: run control (default :class:`~uavcal_jax.calib.config.LoopConfig`'s).
         stop_after: stop after this many epochs of this call, as if killed after that
             epoch's checkpoint (tests, smoke runs).
+        inputs: the caller's other inputs (data folders, preset, command line), recorded
+            in ``config.json`` under ``"command"``.
 
     Raises:
         DataError: no training windows, a run folder that already holds checkpoints without
             ``resume``, or a checkpoint written with another configuration or version.
     """
     seeds = config.train.seeds if seeds is None else int(seeds)
+    loop = LoopConfig() if loop is None else loop
     config = apply_overrides(config, {"train.seeds": seeds})
     train, val = as_windows(train_windows), as_windows(val_windows)
     run_dir = Path(run_dir)
@@ -338,7 +326,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
         raise DataError("no training windows", run_dir)
     if loop.monitor == "val" and not val:
         raise DataError("loop.monitor=val needs validation windows", run_dir)
-    resolved = resolved_config(config, loop, train)
+    run = CalibRunConfig.of(config, loop, train[0].windows.config)
+    resolved = resolved_config(run, train)
     channels, sensor = config.model.imu_channels, config.injection.single_sensor
     stats = training_statistics(train, channels, sensor)
     root = _root(config)
@@ -367,7 +356,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
         # Restored arrays are committed to a device, fresh ones are not, and jit caches the
         # two apart: commit both so a resumed run reuses the uninterrupted run's executable.
         state, root = jax.device_put((state, root), jax.devices()[0])
-        (run_dir / "config.json").write_text(json.dumps(resolved, indent=2) + "\n")
+        write_config(run_dir / RUN_CONFIG_FILE, run, **_window_shape(train),
+                     **({} if inputs is None else {"command": dict(inputs)}))
         bs = config.train.batch_size
         steps = -(-n // bs)
         step_fn = train_step_seeds if seeds > 1 else train_step

@@ -11,14 +11,25 @@ positive class: for true offsets ``o`` and predictions ``o_hat``,
 "Per channel" counts over windows for each channel ``(C,)``; "overall" pools every window and
 channel (micro average, the same sums). Metrics are computed from sums so that batches can
 be accumulated: :func:`metric_sums` per batch, add them, :func:`metrics_from_sums`.
+
+"Per sensor" (:func:`sensor_rmse`, :func:`seed_summary`) reads those metrics back per seed
+(plain lists, as :func:`uavcal_jax.calib.loop.evaluate` returns them) and splits the
+channels by name: gyro (``g*``, rad/s) and accel (``a*``, m/s^2).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-__all__ = ["calibration_metrics", "metric_sums", "metrics_from_sums"]
+__all__ = ["SENSORS", "calibration_metrics", "metric_sums", "metrics_from_sums", "seed_summary",
+           "sensor_rmse"]
+
+#: ``(sensor, channel-name prefix)``: the names of :func:`uavcal_jax.calib.predict.channel_names`.
+SENSORS = (("gyro", "g"), ("accel", "a"))
 
 
 def metric_sums(pred: jax.Array, target: jax.Array,
@@ -69,3 +80,35 @@ def calibration_metrics(pred: jax.Array, target: jax.Array,
                         weight: jax.Array | None = None) -> dict[str, jax.Array]:
     """Eq. 19-23 for one set of predictions ``(B, C)``; see :func:`metrics_from_sums`."""
     return metrics_from_sums(metric_sums(pred, target, weight))
+
+
+def sensor_rmse(offset_rmse_per_channel, channels: Sequence[str]) -> dict[str, float | None]:
+    """Offset RMSE of each sensor of :data:`SENSORS` (gyro rad/s, accel m/s^2) from one seed's
+    ``offset_rmse_per_channel (C,)`` named by ``channels``: the root mean square of its
+    channels' RMSEs (every channel counts the same windows, so this pools them); ``None`` for
+    a sensor without channels."""
+    per_channel = np.asarray(offset_rmse_per_channel)
+    out: dict[str, float | None] = {}
+    for sensor, head in SENSORS:
+        pick = [j for j, c in enumerate(channels) if c.startswith(head)]
+        out[sensor] = float(np.sqrt(np.mean(np.square(per_channel[pick])))) if pick else None
+    return out
+
+
+def seed_summary(per_seed: Sequence[dict], channels: Sequence[str]) -> dict:
+    """Headline numbers of one method on one trial, averaged over seeds, from eq. 19-23
+    metrics (one :func:`metrics_from_sums` dict of plain values per seed): ``sign_f1`` and
+    ``offset_rmse`` (every channel pooled), ``offset_rmse_per_channel`` and
+    ``sign_f1_per_channel`` (lists of ``C``), and ``gyro_rmse`` / ``accel_rmse``
+    (:func:`sensor_rmse` per seed, then the mean; ``None`` without that sensor)."""
+    def avg(key):
+        return np.mean([np.asarray(m[key], np.float64) for m in per_seed], axis=0)
+
+    out = {"sign_f1": float(avg("sign_f1")), "offset_rmse": float(avg("offset_rmse")),
+           "offset_rmse_per_channel": avg("offset_rmse_per_channel").tolist(),
+           "sign_f1_per_channel": avg("sign_f1_per_channel").tolist()}
+    per_sensor = [sensor_rmse(m["offset_rmse_per_channel"], channels) for m in per_seed]
+    for sensor, _ in SENSORS:
+        values = [r[sensor] for r in per_sensor]
+        out[f"{sensor}_rmse"] = None if values[0] is None else float(np.mean(values))
+    return out

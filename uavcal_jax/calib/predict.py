@@ -7,15 +7,13 @@ overlapping windows), predicts every window's offset, and summarises them by the
 windows (robust to the few windows a fast manoeuvre or a dark stretch throws off). A run of
 ``K`` vmapped seeds is an ensemble: each window's estimate is the mean of the seeds'.
 
-:func:`recorded_offset` reads the offset a simulated recording carries
-(``sim_config.json``'s ``config.imu_offset``, written by ``uavcal simulate --imu-offset``):
-with it the true offset of a prediction is known.
+:func:`predict_recording` does it for a run folder and a recording; the offset a simulated
+recording carries (``sim_config.json``'s ``config.imu_offset``, written by ``uavcal simulate
+--imu-offset``, :func:`uavcal_jax.data.sim_config.recorded_imu_offset`) is its true offset.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from pathlib import Path
 from typing import NamedTuple
 
@@ -24,17 +22,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax.calib.batch import frames_to_model, model_imu
+from uavcal_jax.calib.config import CalibRunConfig
 from uavcal_jax.calib.data import load_windows
 from uavcal_jax.calib.inference import encode_frames, predict_windows
 from uavcal_jax.calib.inject import inject
 from uavcal_jax.calib.loop import read_run_config, restore_run
 from uavcal_jax.calib.train import CalibState
+from uavcal_jax.data.sim_config import recorded_imu_offset
 from uavcal_jax.data.windows import WindowSet
 from uavcal_jax.errors import DataError
-from uavcal_jax.sim.simulate import SIM_CONFIG_FILE
 
 __all__ = ["SequencePrediction", "channel_names", "expand_to_six", "model_channels",
-           "predict_recording", "predict_sequence", "recorded_offset"]
+           "predict_recording", "predict_sequence"]
 
 GYRO_CHANNELS = ("gx", "gy", "gz")
 ACCEL_CHANNELS = ("ax", "ay", "az")
@@ -134,50 +133,35 @@ def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
                               channel_names(per_window.shape[1], sensor))
 
 
-def recorded_offset(root: str | Path) -> np.ndarray | None:
-    """The ``(6,)`` IMU offset a simulated recording carries (``sim_config.json``), ``None``
-    when ``root`` has no ``sim_config.json`` or it records no offset."""
-    path = Path(root) / SIM_CONFIG_FILE
-    if not path.is_file():
-        return None
-    try:
-        value = json.loads(path.read_text())["config"].get("imu_offset")
-    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
-        raise DataError("not a readable simulator record (no config.imu_offset)",
-                        path) from None
-    return None if value is None else np.asarray(value, np.float64)
-
-
 def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = "best",
-                      inject_offset=None, frame_encoder_dtype: str | None = None
+                      inject_offset=None, run: CalibRunConfig | None = None
                       ) -> tuple[dict, SequencePrediction]:
     """``(summary, prediction)`` of the run folder's ``kind`` checkpoint on the EuRoC folder
     ``sequence``, cut into the run's windows (black frames masked, as in training).
-    ``frame_encoder_dtype``: run the frame encoder's products in this type instead of the
-    run's (:attr:`~uavcal_jax.calib.config.ModelConfig.frame_encoder_dtype`; the parameters
-    are the same).
+    ``run``: the configuration to predict under (default the run's own,
+    :func:`~uavcal_jax.calib.loop.read_run_config`; a command's ``--set`` may change what a
+    restored model allows, :data:`~uavcal_jax.calib.loop.INFERENCE_KEYS`, e.g.
+    ``model.frame_encoder_dtype``: the frame encoder's operand type, same parameters).
 
     ``inject_offset``: ``(6,)`` added to the recorded IMU first (only the model's channels are
     used). The true offset is known when ``sequence`` is a simulated recording with an
-    offset (:func:`recorded_offset`) and/or ``inject`` is given: then ``summary`` holds it,
+    offset (``sim_config.json``) and/or ``inject`` is given: then ``summary`` holds it,
     the ``error`` of the median and its ``rmse``. ``summary`` is JSON-ready.
 
     Raises:
         DataError: not a run folder, a checkpoint of another configuration or version, a
             sequence shorter than one window, unreadable data.
     """
-    config, _, window, _ = read_run_config(run_dir)
-    sensor = config.injection.single_sensor
-    channels = config.model.imu_channels
+    run = read_run_config(run_dir) if run is None else run
+    window = run.window
+    sensor = run.injection.single_sensor
+    channels = run.model.imu_channels
     (part,) = load_windows([sequence], window)
-    state, seeds = restore_run(run_dir, [part], kind=kind)
-    if frame_encoder_dtype is not None:
-        model = dataclasses.replace(config.model, frame_encoder_dtype=frame_encoder_dtype)
-        state = state.replace(config=dataclasses.replace(state.config, model=model))
+    state, seeds = restore_run(run_dir, [part], kind=kind, run=run)
     pick = model_channels(channels, sensor)
     shift = None if inject_offset is None else np.asarray(inject_offset, np.float64)[pick]
     prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
-    recorded = recorded_offset(sequence)
+    recorded = recorded_imu_offset(sequence)
     true = None
     if recorded is not None or inject_offset is not None:
         true = (np.zeros(6) if recorded is None else recorded) + (

@@ -1,8 +1,11 @@
 """``uavcal calib``: train and evaluate the transformer IMU self-calibrator (Avola et al. 2023).
 
-Every option's default and choices come from the configuration dataclasses
-(:mod:`uavcal_jax.calib.config`, :class:`uavcal_jax.calib.loop.LoopConfig`,
-:class:`uavcal_jax.data.windows.WindowConfig`); ``--set`` reaches every field of them.
+Every option's default and choices come from the configuration dataclasses (the root
+:class:`uavcal_jax.calib.config.CalibRunConfig`); ``--set`` reaches every field of it, in
+``train``, ``eval`` and ``predict``. Each writes the configuration it ran with beside its
+results, with its other inputs under ``"command"``: ``RUN/config.json`` (train),
+``RUN/eval_config.json`` (eval, in each evaluated folder), ``OUT.config.json`` beside
+``predict --out``.
 """
 
 from __future__ import annotations
@@ -28,15 +31,18 @@ warning; all-black frames are treated as missing frames (masked) with a warning.
 TRAIN_EPILOG = """\
 --set KEY=VALUE sets any field: model.*, loss.*, injection.*, train.* (uavcal_jax.calib.config),
 window.* (duration, stride, size WxH, camera, color, min_valid_fraction) and loop.* (monitor
-train|val, keep, val_fraction, split_seed, folds); --set wins over the flags. RUN gets
-config.json, data.json (the windows of each side), metrics.jsonl and checkpoints/{last,best};
-loo/kfold write one such folder per trial, RUN/trial_NN, and RUN/result.json with the mean and
-standard deviation of the validation metrics over trials.
+train|val, keep, validation, val_fraction, split_seed, folds); --set wins over the flags, the
+flags over the preset (a flag left out keeps the preset's value). RUN gets config.json (the
+resolved configuration), data.json (the windows of each side), metrics.jsonl and
+checkpoints/{last,best}; loo/kfold write one such folder per trial, RUN/trial_NN, and
+RUN/result.json with the mean and standard deviation of the validation metrics over trials.
 
 presets (--preset): paper = Table 2 of the paper, the defaults (d 256, 320x180 frames in
 64x64 patches, 10 s windows at 20 Hz, AdamW 1e-5: days on a CPU); small = minutes on a CPU
 (160x96 frames in 32x32 patches at 10 Hz, d 64, pre-norm layers, AdamW 1e-3, the loss in each
-channel's offset units). Its settings are listed in uavcal_jax/calib/protocols.py (PRESETS).
+channel's offset units); shipped = the weights shipped in the package (small with the physical
+protocol, 2 s windows every 0.5 s at 20 Hz, patience 6 on the validation loss). Their settings
+are in uavcal_jax/calib/presets.py (PRESETS).
 
 examples:
   uavcal calib train --data sims/ --out runs/cal --validation loo --preset small --epochs 40
@@ -49,7 +55,8 @@ Estimate the constant offset in a recording's IMU with a trained calibrator: the
 cut into the run's windows, every frame is encoded once (overlapping windows reuse its token),
 every window gets an estimate, and the median over windows is the sequence's. The true offset
 is known when the recording is a simulated one made with `uavcal simulate --imu-offset`
-(sim_config.json) and/or --inject adds one; then the error is printed too."""
+(sim_config.json) and/or --inject adds one; then the error is printed too. With --out, the
+configuration it ran with goes to OUT.config.json (e.g. offsets.config.json)."""
 
 PREDICT_EPILOG = """\
 examples:
@@ -57,6 +64,8 @@ examples:
   uavcal calib predict --checkpoint runs/cal --sequence data/V1_01 --inject 0.02,0,0,0.1,0,0
   uavcal vio --sequence sims/V1_01 --out traj.txt --offsets offsets.json"""
 
+#: ``calib eval``'s record of the configuration it evaluated with, in each evaluated folder.
+EVAL_CONFIG_FILE = "eval_config.json"
 #: Headline validation metrics averaged over trials.
 HEADLINE = ("val_loss", "val_offset_rmse", "val_sign_f1", "baseline_offset_rmse",
             "window_mean_offset_rmse")
@@ -67,11 +76,12 @@ def register(subparsers) -> None:
     from uavcal_jax.calib.config import (
         FRAME_ENCODER_DTYPES,
         PROTOCOLS,
+        VALIDATIONS,
         InjectionConfig,
+        LoopConfig,
         TrainConfig,
     )
-    from uavcal_jax.calib.loop import VALIDATIONS, LoopConfig
-    from uavcal_jax.calib.protocols import PRESETS
+    from uavcal_jax.calib.presets import PRESETS
 
     raw = argparse.RawDescriptionHelpFormatter
     parser = subparsers.add_parser("calib", help="train and evaluate the IMU self-calibrator",
@@ -87,18 +97,23 @@ def register(subparsers) -> None:
                    help="starting configuration, see below; --set and the other flags win "
                         "[default: %(default)s]")
     p.add_argument("--protocol", choices=PROTOCOLS, default=InjectionConfig.protocol,
-                   help="offset injection (paper: N(mu, n_m sigma^2) of the training IMU; "
-                        "symmetric: U(-n_m sigma, n_m sigma); physical: real bias ranges) "
-                        "[default: %(default)s]")
+                   action=_Given,
+                   help="offset injection protocol, injection.protocol (paper: N(mu, n_m "
+                        "sigma^2) of the training IMU; symmetric: U(-n_m sigma, n_m sigma); "
+                        "physical: real bias ranges) [default: the preset's; paper's: "
+                        "%(default)s]")
     p.add_argument("--validation", choices=VALIDATIONS, default=LoopConfig.validation,
-                   help="split: fixed random split over windows; loo: leave one sequence "
-                        "out; kfold: contiguous blocks of windows [default: %(default)s]")
-    p.add_argument("--seeds", type=positive_int, default=TrainConfig.seeds,
-                   help="models trained at once, vmapped [default: %(default)s]")
-    p.add_argument("--epochs", type=positive_int, default=TrainConfig.epochs,
-                   help="most epochs (early stopping may end sooner) [default: %(default)s]")
-    p.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
-                   help="set configuration fields (see below); repeatable")
+                   action=_Given,
+                   help="validation scheme, loop.validation (split: fixed random split over "
+                        "windows; loo: leave one sequence out; kfold: contiguous blocks of "
+                        "windows) [default: the preset's; paper's: %(default)s]")
+    p.add_argument("--seeds", type=positive_int, default=TrainConfig.seeds, action=_Given,
+                   help="models trained at once, vmapped, train.seeds [default: the "
+                        "preset's; paper's: %(default)s]")
+    p.add_argument("--epochs", type=positive_int, default=TrainConfig.epochs, action=_Given,
+                   help="most epochs (early stopping may end sooner), train.epochs "
+                        "[default: the preset's; paper's: %(default)s]")
+    _add_set(p)
     p.add_argument("--resume", action="store_true",
                    help="continue RUN from its last checkpoints (same settings; --epochs may "
                         "be raised)")
@@ -115,8 +130,11 @@ def register(subparsers) -> None:
                    help="evaluate on every window of these sequences [default: the run's "
                         "validation windows]")
     p.add_argument("--offsets", type=positive_int, default=None, metavar="K",
-                   help="evaluate once per offset, K offsets drawn by the run's protocol, "
-                        "each shared by every window [default: the run's loop.val_offsets]")
+                   help="evaluate once per offset, K offsets drawn by the run's injection "
+                        "protocol, each shared by every window, loop.val_offsets [default: the "
+                        "run's]")
+    _add_set(p, "the run's configuration (what a restored model may change: run control, "
+                "batch size, window stride; see calib.loop.INFERENCE_KEYS)")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_eval)
 
@@ -144,6 +162,8 @@ def register(subparsers) -> None:
                    help="operand type of the frame encoder's matrix products: bfloat16 "
                         "halves their time on CPUs with bfloat16 dot products (float32 sums; "
                         "see ModelConfig.frame_encoder_dtype) [default: the run's]")
+    _add_set(p, "the run's configuration (what a restored model may change: e.g. "
+                "window.stride; see calib.loop.INFERENCE_KEYS)")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_predict)
 
@@ -151,51 +171,66 @@ def register(subparsers) -> None:
 # ----------------------------------------------------------------------------- configuration
 
 
-def train_configs(args):
-    """``(CalibConfig, LoopConfig, WindowConfig)`` of parsed ``calib train`` arguments."""
-    from uavcal_jax.calib.protocols import resolve_configs
+class _Given(argparse.Action):
+    """Store the value and note the flag as given (``args.given``): a flag left out keeps the
+    preset's value, not its parser default (the paper preset's)."""
 
-    try:
-        return resolve_configs(args.set, preset=args.preset, protocol=args.protocol,
-                               validation=args.validation, seeds=args.seeds,
-                               epochs=args.epochs)
-    except KeyError as err:
-        raise DataError(f"--set: unknown configuration key {err.args[0]!r} (sections: model, "
-                        "loss, injection, train, window, loop)") from None
-    except (ValueError, TypeError) as err:
-        raise DataError(f"--set: {err}") from None
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        namespace.given = {*getattr(namespace, "given", ()), self.dest}
+
+
+def _add_set(p, what: str = "configuration fields (see below)") -> None:
+    p.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
+                   help=f"set {what}; repeatable; an unknown key is an error naming it")
+
+
+def _inputs(args, *names: str) -> dict:
+    """The command's inputs besides the configuration (``"command"`` of its config file):
+    the action and the arguments ``names``, paths as strings."""
+    def plain(value):
+        if isinstance(value, list | tuple):
+            return [plain(v) for v in value]
+        return str(value) if isinstance(value, Path) else value
+
+    return {"action": f"calib {args.calib_command}",
+            **{name: plain(getattr(args, name)) for name in names}}
+
+
+def train_configs(args):
+    """The :class:`~uavcal_jax.calib.config.CalibRunConfig` of parsed ``calib train``
+    arguments: the preset, the flags given, then ``--set``."""
+    from uavcal_jax.calib.presets import resolve_configs
+
+    given = getattr(args, "given", ())
+    return resolve_configs(args.set, preset=args.preset, **{
+        name: getattr(args, name) for name in ("protocol", "validation", "seeds", "epochs")
+        if name in given})
 
 
 # ----------------------------------------------------------------------------- train
 
 
 def _aggregate(rows: list[dict]) -> dict:
-    from uavcal_jax.calib.protocols import mean_std
+    from uavcal_jax.calib.trials import mean_std_of
 
-    out = {k: mean_std([r.get(k) for r in rows]) for k in HEADLINE}
-    return {k: v for k, v in out.items() if v is not None}
+    return {k: v for k, v in mean_std_of(rows, HEADLINE).items() if v is not None}
 
 
 def run_train(args) -> int:
     from uavcal_jax.calib.data import load_windows
-    from uavcal_jax.calib.loop import fit
-    from uavcal_jax.calib.protocols import TRIAL_FORMAT, trial_sides, validation_trials
+    from uavcal_jax.calib.trials import run_trials, validation_trials
 
-    calib, loop, window = train_configs(args)
+    run = train_configs(args)
     enable_compilation_cache()
-    parts = load_windows(args.data, window)
-    trials = validation_trials(parts, loop)
+    parts = load_windows(args.data, run.window)
     out = Path(args.out)
-    results = []
-    for i, (train, val) in enumerate(trials):
-        run_dir = out if len(trials) == 1 else out / TRIAL_FORMAT.format(i)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "data.json").write_text(json.dumps(trial_sides(train, val)) + "\n")
-        res = fit(calib, train, val, run_dir, resume=args.resume, progress=not args.json,
-                  loop=loop, stop_after=args.stop_after)
-        results.append({**res.summary, "held_out": [p.source for p in val]})
-    summary = {"run": str(out), "validation": loop.validation, "protocol":
-               calib.injection.protocol, "seeds": calib.train.seeds, "trials": results,
+    results = run_trials(run.calib, run.loop, validation_trials(parts, run.loop), out,
+                         resume=args.resume, progress=not args.json,
+                         stop_after=args.stop_after,
+                         inputs=_inputs(args, "data", "out", "preset", "set", "resume"))
+    summary = {"run": str(out), "validation": run.loop.validation, "protocol":
+               run.injection.protocol, "seeds": run.train.seeds, "trials": results,
                "mean_std": _aggregate([r["best"] for r in results])}
     (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
     if args.json:
@@ -221,48 +256,27 @@ def _print_mean_std(agg: dict, trials: int) -> None:
 # ----------------------------------------------------------------------------- eval
 
 
-def run_dirs(run: str | Path) -> list[Path]:
-    """The fit folders of ``run``: itself, or its trial folders."""
-    run = Path(run)
-    if (run / "config.json").is_file():
-        return [run]
-    trials = sorted(p for p in run.glob("trial_*") if (p / "config.json").is_file())
-    if not trials:
-        raise DataError("not a calib run folder (no config.json, no trial_*/)", run)
-    return trials
-
-
-def _val_windows(run_dir: Path, window, cache: dict):
-    from uavcal_jax.calib.data import Windows, load_windows
-
-    path = run_dir / "data.json"
-    if not path.is_file():
-        raise DataError("no data.json: give --data", run_dir)
-    parts = []
-    for entry in json.loads(path.read_text())["val"]:
-        if entry["source"] not in cache:
-            (cache[entry["source"]],) = load_windows([entry["source"]], window)
-        w = cache[entry["source"]]
-        parts.append(Windows(w.windows, np.asarray(entry["indices"], np.int64), w.source))
-    return parts
-
-
 def run_eval(args) -> int:
     from uavcal_jax.calib.data import load_windows
     from uavcal_jax.calib.loop import evaluate, read_run_config, restore_run
+    from uavcal_jax.calib.presets import resolve_configs
+    from uavcal_jax.calib.trials import trial_dirs, validation_windows
+    from uavcal_jax.config import write_config
 
     enable_compilation_cache()
     cache: dict = {}
     trials = []
-    for run_dir in run_dirs(args.run):
-        _, loop, window, _ = read_run_config(run_dir)
-        parts = (load_windows(args.data, window) if args.data
-                 else _val_windows(run_dir, window, cache))
+    for run_dir in trial_dirs(args.run):
+        run = resolve_configs(args.set, preset=read_run_config(run_dir),
+                              arguments={"loop.val_offsets": args.offsets})
+        parts = (load_windows(args.data, run.window) if args.data
+                 else validation_windows(run_dir, run.window, cache))
         if not parts:
             raise DataError("no validation windows to evaluate on: give --data", run_dir)
-        state, seeds = restore_run(run_dir, parts)
-        res = evaluate(state, parts, seeds, draws=args.offsets or loop.val_offsets,
-                       show=not args.json)
+        state, seeds = restore_run(run_dir, parts, run=run)
+        res = evaluate(state, parts, seeds, draws=run.loop.val_offsets, show=not args.json)
+        write_config(run_dir / EVAL_CONFIG_FILE, run,
+                     command=_inputs(args, "run", "data", "offsets", "set"))
         trials.append({"run": str(run_dir), **res})
     rows = [{"val_loss": float(np.mean(t["loss"])),
              "val_offset_rmse": float(np.mean([m["offset_rmse"] for m in t["metrics"]])),
@@ -289,12 +303,12 @@ def run_eval(args) -> int:
 
 def _predict_run_dir(checkpoint: str | None) -> Path:
     from uavcal_jax.calib.pretrained import default_weights
-    from uavcal_jax.calib.protocols import TRIAL_FORMAT
+    from uavcal_jax.calib.trials import TRIAL_FORMAT, trial_folders
 
     if checkpoint is None:
         return default_weights()
     run = Path(checkpoint)
-    if not (run / "config.json").is_file() and any(run.glob("trial_*/config.json")):
+    if not (run / "config.json").is_file() and trial_folders(run):
         raise DataError("a loo/kfold run holds one model per trial: give one, e.g. "
                         f"{run / TRIAL_FORMAT.format(0)}", run)
     return run
@@ -307,43 +321,19 @@ def _offset_table(channels, rows: dict[str, np.ndarray]) -> str:
     return "\n".join(lines + ["(gyro rad/s, accel m/s^2)"])
 
 
-def plot_predictions(path: Path, prediction, true=None) -> Path:
-    """PNG: each channel's per-window estimates against window start time, the median and,
-    when known, the true offset (the Figure 2 view of one sequence)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    c = len(prediction.channels)
-    fig, axes = plt.subplots(c // 3, 3, figsize=(11, 3.2 * (c // 3)), squeeze=False,
-                             sharex=True)
-    for j, (ax, name) in enumerate(zip(axes.flat, prediction.channels, strict=True)):
-        ax.plot(prediction.start_s, prediction.per_window[:, j], ".", ms=4, label="window")
-        ax.axhline(prediction.median[j], color="C0", lw=1.5, label="median")
-        if true is not None:
-            ax.axhline(true[j], color="k", ls="--", lw=1.2, label="true")
-        ax.set_title(name + (" (rad/s)" if name.startswith("g") else " (m/s^2)"))
-        ax.grid(alpha=0.3)
-    for ax in axes[-1]:
-        ax.set_xlabel("window start (s)")
-    axes.flat[0].legend(fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
 def run_predict(args) -> int:
+    from uavcal_jax.calib.loop import read_run_config
     from uavcal_jax.calib.predict import expand_to_six, predict_recording
+    from uavcal_jax.calib.presets import resolve_configs
+    from uavcal_jax.config import write_config
     from uavcal_jax.data.offset_json import write_offset_json
 
     enable_compilation_cache()
     run_dir = _predict_run_dir(args.checkpoint)
+    run = resolve_configs(args.set, preset=read_run_config(run_dir),
+                          arguments={"model.frame_encoder_dtype": args.frame_dtype})
     summary, prediction = predict_recording(run_dir, args.sequence, kind=args.kind,
-                                            inject_offset=args.inject,
-                                            frame_encoder_dtype=args.frame_dtype)
+                                            inject_offset=args.inject, run=run)
     true = None if summary["true"] is None else np.asarray(summary["true"])
     sensor = summary["sensor"]
     if args.out is not None:
@@ -354,8 +344,16 @@ def run_predict(args) -> int:
                           **{k: summary[k] for k in ("run", "sequence", "channels", "windows",
                                                      "per_window", "true", "error")})
         summary["out"] = str(args.out)
+        summary["config"] = str(write_config(
+            args.out.with_suffix(".config.json"), run,
+            command={**_inputs(args, "sequence", "kind", "inject", "out", "plot", "set"),
+                     "checkpoint": str(run_dir)}))
     if args.plot is not None:
-        summary["plot"] = str(plot_predictions(args.plot, prediction, true))
+        from uavcal_jax.plots import plot_offsets
+
+        summary["plot"] = str(plot_offsets(
+            args.plot, prediction.start_s, prediction.channels, {"window": prediction.per_window},
+            true=true, median=prediction.median))
     if args.json:
         print_json(summary)
         return 0
@@ -367,7 +365,7 @@ def run_predict(args) -> int:
     print(f"{run_dir} ({args.kind}, {seeds} seed{'s' * (seeds > 1)}): "
           f"{summary['windows']} windows of {summary['window_s']:g} s on {args.sequence}")
     print(_offset_table(prediction.channels, rows))
-    for key in ("out", "plot"):
+    for key in ("out", "config", "plot"):
         if key in summary:
             print(f"wrote {summary[key]}")
     return 0

@@ -57,18 +57,19 @@ def _simulate(ctx: dict[str, Any]) -> dict[str, Any]:
 
 
 def _read(ctx: dict[str, Any]) -> dict[str, Any]:
-    from uavcal_jax.commands.info import summarize
-    from uavcal_jax.data import read_euroc
+    from uavcal_jax.data.read import read_sequence
+    from uavcal_jax.data.sequence_summary import summarize_sequence
 
-    seq = read_euroc(ctx["root"], strict=True)  # the simulator's output needs no repairs
+    # the simulator's output needs no repairs
+    seq, fmt = read_sequence(ctx["root"], strict=True)
     ctx["sequence"] = seq
-    return summarize(seq)
+    return summarize_sequence(seq, fmt)
 
 
 def _show_summary(result: dict[str, Any]) -> str:
-    from uavcal_jax.commands.info import format_text
+    from uavcal_jax.data.sequence_summary import format_sequence_summary
 
-    return format_text(result)
+    return format_sequence_summary(result)
 
 
 def _calibrate(ctx: dict[str, Any]) -> dict[str, Any]:
@@ -112,12 +113,11 @@ def _show_offsets(result: dict[str, Any]) -> str:
 
 
 def _vio(ctx: dict[str, Any]) -> dict[str, Any]:
-    from uavcal_jax.commands.vio import summarize
     from uavcal_jax.vio.run import run_vio
 
     seq = ctx["sequence"]
     result = run_vio(seq, imu_offset=ctx.get("offset_estimate"), show_progress=ctx["progress"])
-    out = summarize(result, seq.ground_truth)
+    out = result.summary(seq.ground_truth)
     out["offset_removed"] = ("the calibrate step's transformer estimate"
                              if "offset_estimate" in ctx else None)
     return out

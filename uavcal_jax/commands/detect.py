@@ -1,7 +1,7 @@
 """``uavcal detect``: train, evaluate and run the target detector (YZNet-YOLO / YOLOv5n-like).
 
 Every option's default and choices come from the configuration dataclasses and constants of
-:mod:`uavcal_jax.detect.config` (and :mod:`~uavcal_jax.detect.datasets`,
+:mod:`uavcal_jax.detect.config` (and :mod:`~uavcal_jax.data.detection_labels`,
 :mod:`~uavcal_jax.detect.run`); the help texts print them from there.
 """
 
@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
 import time
 from pathlib import Path
 
 from uavcal_jax.argtypes import fraction, parse_imgsz, positive_int, print_json
+from uavcal_jax.config import apply_overrides, valid_keys, write_config
 from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress
 from uavcal_jax.xla_cache import enable_compilation_cache
@@ -27,36 +29,65 @@ and malformed labels are skipped with one warning listing them; images without l
 negatives."""
 
 TRAIN_EPILOG = """\
-The run folder RUN gets config.json (resolved configuration), split.json (the fixed train/val
-split by image), metrics.csv/metrics.json (one row per epoch), curves.png,
-checkpoints/last (resume with --resume) and checkpoints/best (EMA weights with the best
-validation mAP@0.5:0.95), and export/detector.jax (the jax.export'ed predict function).
+The run folder RUN gets config.json (the resolved configuration: the options, then any --set),
+split.json (the fixed train/val split by image), metrics.csv/metrics.json (one row per epoch),
+curves.png, checkpoints/last (resume with --resume) and checkpoints/best (EMA weights with the
+best validation mAP@0.5:0.95), and export/detector.jax (the jax.export'ed predict function).
 
 examples:
   uavcal detect train --data ../shared/data/detection/raccoon_voc --format voc --out runs/raccoon
   uavcal detect train --data DIR --out RUN --model yznet-yolo --epochs 300 --imgsz 640
   uavcal detect train --data DIR --out RUN --optimizer sgd --mosaic 1.0
-  uavcal detect train --data DIR --out RUN --resume --epochs 400"""
+  uavcal detect train --data DIR --out RUN --resume --epochs 400
+  uavcal detect train --data DIR --out RUN --set train.augment.scale=0.3 detector.anchor_t=3
+
+--set keys:
+{keys}"""
 
 EVAL_EPILOG = """\
 Prints map50 (mAP@0.5) and map50_95 (mAP@0.5:0.95, COCO's 101-point interpolation, {n}
 detections per image; --voc07 for the 11-point VOC 2007 variant). Without --data the run's
-own validation split is used.
+own validation split is used. Writes RUN/eval.json (the scores) and RUN/eval_config.json (the
+resolved prediction settings: the run's, --conf and --iou, then any --set).
 
 examples:
   uavcal detect eval runs/raccoon
-  uavcal detect eval runs/raccoon --data other_voc_folder --json"""
+  uavcal detect eval runs/raccoon --data other_voc_folder --json
+  uavcal detect eval runs/raccoon --set multi_label=false
+
+--set keys (prediction settings):
+{keys}"""
 
 PREDICT_EPILOG = """\
-Writes OUT/<image name> with the boxes drawn and OUT/detections.json, a COCO-format file
-(images, categories, annotations with a score) that `uavcal detect eval` and COCO tools read.
+Writes OUT/<image name> with the boxes drawn, OUT/detections.json, a COCO-format file
+(images, categories, annotations with a score) that `uavcal detect eval` and COCO tools read,
+and OUT/predict_config.json (the resolved prediction settings: the options, then any --set).
 
 examples:
   uavcal detect predict photos/ --checkpoint runs/raccoon --out out/pred
-  uavcal detect predict 'frames/*.png' --checkpoint runs/raccoon --out out/pred --conf 0.4"""
+  uavcal detect predict 'frames/*.png' --checkpoint runs/raccoon --out out/pred --conf 0.4
+  uavcal detect predict photos/ --checkpoint runs/raccoon --out out/pred --set agnostic=true
+
+--set keys (prediction settings):
+{keys}"""
 
 #: Images per call of `detect predict` (serving one image at a time by default).
 PREDICT_BATCH = 1
+#: Beside the results of `detect eval` (in RUN) and `detect predict` (in OUT): the resolved
+#: :class:`~uavcal_jax.detect.config.PredictConfig`.
+EVAL_CONFIG, PREDICT_CONFIG = "eval_config.json", "predict_config.json"
+
+
+def _keys(config_cls) -> str:
+    """The ``--set`` keys of ``config_cls``, wrapped for an epilog."""
+    return textwrap.fill(", ".join(valid_keys(config_cls)), 88, initial_indent="  ",
+                         subsequent_indent="  ")
+
+
+def _add_set(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
+                        help=f"set {what} (keys below), applied after the options; "
+                             "repeatable; an unknown key is an error naming it")
 
 
 def _optimizer_help(paper, sgd) -> str:
@@ -67,6 +98,7 @@ def _optimizer_help(paper, sgd) -> str:
 
 
 def register(subparsers) -> None:
+    from uavcal_jax.data.detection_labels import LABEL_FORMATS
     from uavcal_jax.detect.augment import AugmentConfig
     from uavcal_jax.detect.config import (
         EVAL_PREDICT,
@@ -75,10 +107,11 @@ def register(subparsers) -> None:
         SCHEDULES,
         SELECT_METRICS,
         SERVE_PREDICT,
+        DetectConfig,
         DetectorConfig,
+        PredictConfig,
         TrainConfig,
     )
-    from uavcal_jax.detect.datasets import FORMATS
     from uavcal_jax.detect.run import CHECKPOINTS
 
     paper, sgd = TrainConfig.paper(), TrainConfig.yolov5()
@@ -90,10 +123,11 @@ def register(subparsers) -> None:
 
     # ---------------------------------------------------------------- train
     p = sub.add_parser("train", help="train a detector on a VOC/YOLO/COCO/simulator data set",
-                       description=description, epilog=TRAIN_EPILOG, formatter_class=raw)
+                       description=description,
+                       epilog=TRAIN_EPILOG.format(keys=_keys(DetectConfig)), formatter_class=raw)
     p.add_argument("--data", required=True, metavar="DIR", help="the data set folder (or COCO "
                    "json)")
-    p.add_argument("--format", choices=FORMATS, default=None,
+    p.add_argument("--format", choices=LABEL_FORMATS, default=None,
                    help="data set format [default: detected from the folder]")
     p.add_argument("--out", required=True, metavar="RUN", help="the run folder to write")
     p.add_argument("--model", choices=MODELS, default=DetectorConfig.model,
@@ -146,19 +180,21 @@ def register(subparsers) -> None:
                         "split; --epochs may be raised)")
     p.add_argument("--no-export", action="store_true",
                    help="do not write export/detector.jax at the end")
+    _add_set(p, "detector and training fields")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_train)
 
     # ---------------------------------------------------------------- eval
     p = sub.add_parser("eval", help="mAP@0.5 and mAP@0.5:0.95 of a trained run",
                        description="Evaluate a trained run (its best checkpoint).",
-                       epilog=EVAL_EPILOG.format(n=TrainConfig.map_max_dets),
+                       epilog=EVAL_EPILOG.format(n=TrainConfig.map_max_dets,
+                                                 keys=_keys(PredictConfig)),
                        formatter_class=raw)
     p.add_argument("run", metavar="RUN", help="a run folder written by `detect train`")
     p.add_argument("--data", metavar="DIR", default=None,
                    help="evaluate on all images of this data set [default: the run's "
                         "validation split]")
-    p.add_argument("--format", choices=FORMATS, default=None,
+    p.add_argument("--format", choices=LABEL_FORMATS, default=None,
                    help="format of --data [default: detected]")
     p.add_argument("--checkpoint", choices=CHECKPOINTS, default=CHECKPOINTS[0],
                    help="which weights [default: %(default)s]")
@@ -167,6 +203,7 @@ def register(subparsers) -> None:
     p.add_argument("--iou", type=float, default=EVAL_PREDICT.iou_thresh,
                    help="NMS IoU threshold [default: %(default)s]")
     p.add_argument("--voc07", action="store_true", help="VOC 2007 11-point interpolation")
+    _add_set(p, "prediction settings")
     p.add_argument("--batch", type=positive_int, default=TrainConfig.batch_size,
                    help="[default: %(default)s]")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
@@ -174,7 +211,8 @@ def register(subparsers) -> None:
 
     # ---------------------------------------------------------------- predict
     p = sub.add_parser("predict", help="detect objects in images, draw boxes, write COCO json",
-                       description="Run a trained detector on images.", epilog=PREDICT_EPILOG,
+                       description="Run a trained detector on images.",
+                       epilog=PREDICT_EPILOG.format(keys=_keys(PredictConfig)),
                        formatter_class=raw)
     p.add_argument("images", nargs="+", metavar="IMAGES",
                    help="image files, folders (searched recursively) or glob patterns")
@@ -189,6 +227,7 @@ def register(subparsers) -> None:
                    help="[default: %(default)s]")
     p.add_argument("--batch", type=positive_int, default=PREDICT_BATCH,
                    help="[default: %(default)s]")
+    _add_set(p, "prediction settings")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_predict)
 
@@ -244,10 +283,15 @@ def train_config(args):
 
 
 def run_train(args) -> int:
-    from uavcal_jax.detect.config import DetectorConfig
+    from uavcal_jax.detect.config import DetectConfig, DetectorConfig
     from uavcal_jax.detect.datasets import load_dataset
+    from uavcal_jax.detect.run import RunPaths
     from uavcal_jax.detect.train import train
+    from uavcal_jax.plots import training_curves_writer
 
+    # the options, then --set (num_classes comes from the data set)
+    config = apply_overrides(DetectConfig(DetectorConfig(model=args.model, img_size=args.imgsz),
+                                          train_config(args)), args.set)
     data = Path(args.data)
     if not data.exists():
         raise DataError("no such data folder", data)
@@ -258,16 +302,15 @@ def run_train(args) -> int:
         raise DataError("no usable images", data)
     val = load_dataset(args.val_data, args.format, dataset.class_names) \
         if args.val_data else None
-    cfg = train_config(args)
-    det_cfg = DetectorConfig(model=args.model, num_classes=max(1, dataset.num_classes),
-                             img_size=args.imgsz)
+    det_cfg = config.detector.replace(num_classes=max(1, dataset.num_classes))
     show = not args.json
-    summary = train(dataset, det_cfg, cfg, args.out, resume=args.resume, val_dataset=val,
-                    progress=_progress(show), log=_log(show),
-                    max_steps_per_epoch=args.max_steps)
+    summary = train(dataset, det_cfg, config.train, args.out, resume=args.resume,
+                    val_dataset=val, progress=_progress(show), log=_log(show),
+                    max_steps_per_epoch=args.max_steps,
+                    on_epoch=training_curves_writer(RunPaths(Path(args.out)).png))
     if not args.no_export:
         from uavcal_jax.detect.export import export_predict
-        from uavcal_jax.detect.run import RunPaths, load_run
+        from uavcal_jax.detect.run import load_run
 
         loaded = load_run(args.out)
         path = export_predict(loaded.variables, loaded.det_cfg, RunPaths(Path(args.out)).export,
@@ -289,16 +332,25 @@ def run_train(args) -> int:
 
 
 def run_eval(args) -> int:
+    import dataclasses
+
     from uavcal_jax.detect.evaluate import evaluate_run
+    from uavcal_jax.detect.run import RunPaths, read_config
 
     run = _require_run(args.run)
+    # the run's validation settings, --conf and --iou, then --set
+    predict_cfg = apply_overrides(read_config(RunPaths(run))[0].train.predict.replace(
+        conf_thresh=args.conf, iou_thresh=args.iou), args.set)
     if args.data is not None and not Path(args.data).exists():
         raise DataError("no such data folder", args.data)
     enable_compilation_cache()
+    interpolation = "voc07" if args.voc07 else "coco101"
     out = evaluate_run(run, args.data, args.format, which=args.checkpoint,
-                       batch_size=args.batch, interpolation="voc07" if args.voc07 else "coco101",
-                       progress=_progress(not args.json), conf_thresh=args.conf,
-                       iou_thresh=args.iou)
+                       batch_size=args.batch, interpolation=interpolation,
+                       progress=_progress(not args.json), **dataclasses.asdict(predict_cfg))
+    out["config"] = str(write_config(run / EVAL_CONFIG, predict_cfg, checkpoint=args.checkpoint,
+                                     data=args.data, format=args.format, batch=args.batch,
+                                     interpolation=interpolation))
     if args.json:
         print_json(out)
     else:
@@ -318,28 +370,32 @@ def run_eval(args) -> int:
 def run_predict(args) -> int:
     import functools
 
+    from uavcal_jax.data.detection_records import collect_images
     from uavcal_jax.detect.annotate import annotate_files
     from uavcal_jax.detect.config import SERVE_PREDICT
     from uavcal_jax.detect.predict import make_predict_fn
-    from uavcal_jax.detect.records import collect_images
     from uavcal_jax.detect.run import load_run
 
     run = _require_run(args.checkpoint)
+    # the options, then --set
+    predict_cfg = apply_overrides(SERVE_PREDICT.replace(
+        conf_thresh=args.conf, iou_thresh=args.iou, max_det=args.max_det), args.set)
     paths = collect_images(args.images)
     enable_compilation_cache()
     t0 = time.perf_counter()
     loaded = load_run(run)
-    predict_cfg = SERVE_PREDICT.replace(conf_thresh=args.conf, iou_thresh=args.iou,
-                                        max_det=args.max_det)
     predict_fn = functools.partial(make_predict_fn(loaded.det_cfg, predict_cfg),
                                    loaded.variables)
     summary = annotate_files(
         predict_fn, paths, loaded.det_cfg.img_size, args.out, loaded.data["class_names"],
         category_ids=loaded.data.get("category_ids") or None, batch_size=args.batch,
         info={"description": f"uavcal detect predict ({loaded.det_cfg.model})",
-              "run": str(run), "conf_thresh": args.conf, "iou_thresh": args.iou},
+              "run": str(run), "conf_thresh": predict_cfg.conf_thresh,
+              "iou_thresh": predict_cfg.iou_thresh},
         progress=lambda total: progress(total=total, desc="predict", enabled=not args.json,
                                         unit="img"))
+    summary["config"] = str(write_config(Path(args.out) / PREDICT_CONFIG, predict_cfg,
+                                         checkpoint=str(run), batch=args.batch))
     summary["wall_s"] = round(time.perf_counter() - t0, 2)
     if args.json:
         print_json(summary)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import textwrap
 import time
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from uavcal_jax.argtypes import (
     positive_int,
     print_json,
 )
+from uavcal_jax.config import apply_overrides, valid_keys
 from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.data.euroc_rig import EUROC_RESOLUTION
 from uavcal_jax.errors import DataError
@@ -28,8 +30,8 @@ T_WC = T_WB(t) @ T_BS), depth0/depth1 (uint16 PNG, z-depth in millimetres, 0 = n
 ({_D.imu_rate_hz:g} Hz, EuRoC's ADIS16448 noise model), {fmt.GROUND_TRUTH_FOLDER}
 ({fmt.GROUND_TRUTH_FIELDS} columns: position, quaternion w,x,y,z, velocity, the IMU's true gyro
 and accel biases) and target0 (per frame and camera: boxes of the targets' visible pixels and
-their 3D world positions). The resolved configuration is written to DIR/sim_config.json. Read
-the result with `uavcal info DIR`.
+their 3D world positions). The resolved configuration (the options, then any --set) is written
+to DIR/sim_config.json. Read the result with `uavcal info DIR`.
 
 The flight is a TUM trajectory file (--trajectory) or a procedural flight from --seed. Frames
 image like EuRoC's MT9V034 (exposure x gain calibrated to the real V1_01 frames' brightness,
@@ -42,7 +44,11 @@ examples:
   uavcal simulate --out out/sim --duration 20 --seed 3
   uavcal simulate --out out/v101 --trajectory V1_01_easy.txt --start 10 --duration 30
   uavcal simulate --out out/imu_only --no-frames --no-imu-noise --duration 60
-  uavcal simulate --out out/miscal --imu-offset=-0.02,0.01,0.03,0.2,-0.1,0.15"""
+  uavcal simulate --out out/miscal --imu-offset=-0.02,0.01,0.03,0.2,-0.1,0.15
+  uavcal simulate --out out/fast --set imu_rate_hz=400 blur_samples=1
+
+--set keys (SimConfig fields):
+{keys}"""
 
 
 def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
@@ -117,15 +123,24 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--workers", type=positive_int, default=_D.png_workers, metavar="N",
                    help="threads encoding PNGs while the next batch renders "
                         f"[default: {_D.png_workers}]")
+    parser.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="set SimConfig fields (keys below), applied after the options "
+                             "above; repeatable; an unknown key is an error naming it")
 
 
 def config_from_args(args: argparse.Namespace) -> SimConfig:
-    """A :class:`~uavcal_jax.sim.config.SimConfig` from :func:`add_sim_arguments`' options."""
+    """A :class:`~uavcal_jax.sim.config.SimConfig` from :func:`add_sim_arguments`' options,
+    then its ``--set key=value`` overrides (:func:`uavcal_jax.config.apply_overrides`).
+
+    Raises:
+        DataError: ``--start`` without ``--trajectory`` or below zero; an unknown ``--set``
+            key (named, with the valid ones) or a value that does not parse.
+    """
     if args.start is not None and args.trajectory is None:
         raise DataError("--start needs --trajectory (a procedural flight has no file clock)")
     if args.start is not None and args.start < 0:
         raise DataError(f"--start must be >= 0 seconds, got {args.start:g}", args.trajectory)
-    return SimConfig(
+    config = SimConfig(
         trajectory=args.trajectory,
         start=_D.start if args.start is None else float(args.start),
         duration=float(args.duration),
@@ -147,12 +162,15 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         batch_size=int(args.batch),
         png_workers=int(args.workers),
     )
+    return apply_overrides(config, args.set)
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "simulate", help="simulate a flight into an EuRoC ASL folder (IMU, stereo, depth, "
-        "target labels, ground truth)", description=DESCRIPTION, epilog=EPILOG,
+        "target labels, ground truth)", description=DESCRIPTION,
+        epilog=EPILOG.format(keys=textwrap.fill(", ".join(valid_keys(SimConfig)), 88,
+                                                initial_indent="  ", subsequent_indent="  ")),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True, type=Path, metavar="DIR",
                    help="output folder (gets DIR/mav0 and DIR/sim_config.json); must not exist "

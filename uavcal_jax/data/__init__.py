@@ -1,4 +1,5 @@
-"""Readers for real recordings (EuRoC ASL, TUM, ROS bags) and training windows."""
+"""Readers for real recordings (EuRoC ASL, TUM, ROS bags; :func:`read_sequence` for any of
+them) and training windows."""
 
 from uavcal_jax.data.euroc import (
     camera_calibration_from_yaml,
@@ -9,6 +10,7 @@ from uavcal_jax.data.euroc import (
     read_ground_truth_csv,
     read_sensor_yaml,
 )
+from uavcal_jax.data.read import read_sequence
 from uavcal_jax.data.rosbag import read_rosbag
 from uavcal_jax.data.sequence import (
     CameraCalibration,
@@ -43,6 +45,7 @@ __all__ = [
     "read_ground_truth_csv",
     "read_opencv_yaml",
     "read_rosbag",
+    "read_sequence",
     "read_sensor_yaml",
     "read_target_labels",
     "read_tum",

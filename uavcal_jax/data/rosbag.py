@@ -96,16 +96,31 @@ def _open_reader(path: Path):
     return reader
 
 
+#: A ROS 1 bag file's suffix, and the storage files of a ROS 2 bag (whose folder, holding
+#: :data:`ROS2_METADATA`, is the bag).
+ROS1_SUFFIX = ".bag"
+ROS2_STORAGE_SUFFIXES = (".db3", ".mcap")
+ROS2_METADATA = "metadata.yaml"
+
+
+def is_bag(path: str | Path) -> bool:
+    """A ROS 1 ``.bag`` file, a ROS 2 bag folder (``metadata.yaml``) or its storage file."""
+    path = Path(path)
+    if path.is_file():
+        return path.suffix in (ROS1_SUFFIX, *ROS2_STORAGE_SUFFIXES)
+    return path.is_dir() and (path / ROS2_METADATA).is_file()
+
+
 def _bag_path(path: str | Path) -> Path:
     path = Path(path)
     if not path.exists():
         raise DataError("no such bag", path)
     # A ROS 2 storage file (.db3 / .mcap) given directly: its folder is the bag.
-    if path.is_file() and path.suffix in (".db3", ".mcap") and (path.parent /
-                                                                  "metadata.yaml").is_file():
+    if path.is_file() and path.suffix in ROS2_STORAGE_SUFFIXES and (
+            path.parent / ROS2_METADATA).is_file():
         return path.parent
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        raise DataError("not a ROS 2 bag folder: no metadata.yaml", path / "metadata.yaml")
+    if path.is_dir() and not (path / ROS2_METADATA).is_file():
+        raise DataError("not a ROS 2 bag folder: no metadata.yaml", path / ROS2_METADATA)
     return path
 
 

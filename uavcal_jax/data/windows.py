@@ -32,6 +32,7 @@ over the same span. Frames no window keeps are not decoded.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -210,6 +211,14 @@ class WindowSet:
                    else np.asarray(indices, dtype=np.int64).reshape(-1))
         return {**self._side(self.frame_index[indices], self.frame_mask[indices]),
                 "window": indices}
+
+    def subset(self, indices) -> WindowSet:
+        """The windows ``indices`` (any integer array, in its order) as a WindowSet of their
+        own; ``frames`` and the IMU arrays are shared, not copied."""
+        idx = np.asarray(indices, np.int64)
+        return dataclasses.replace(self, start_ns=self.start_ns[idx],
+                                   frame_index=self.frame_index[idx],
+                                   frame_mask=self.frame_mask[idx], imu_range=self.imu_range[idx])
 
     def _side(self, idx: np.ndarray, mask: np.ndarray, squeeze: bool = False) -> dict:
         safe = np.maximum(idx, 0)

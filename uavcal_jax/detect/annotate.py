@@ -19,8 +19,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from uavcal_jax.data.detection_records import IMREAD_FLAGS
 from uavcal_jax.detect.predict import ImageDetections, detect_images
-from uavcal_jax.detect.records import IMREAD_FLAGS
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 

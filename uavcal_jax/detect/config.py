@@ -3,7 +3,8 @@
 :class:`DetectorConfig` defines a detector, its decoding and its loss; :class:`PredictConfig`
 the post-processing thresholds, with the two presets :data:`EVAL_PREDICT` (YOLOv5 ``val.py``,
 for mAP) and :data:`SERVE_PREDICT` (YOLOv5 ``detect.py``, for use); :class:`TrainConfig` a
-training run. Every default lives here; the CLI and the experiments read them from the fields.
+training run; :class:`DetectConfig` is the root holding a detector and its training run.
+Every default lives here; the CLI and the experiments read them from the fields.
 
 The loss gains are YOLOv5's ``hyp.scratch-low.yaml`` values (box 0.05, obj 1.0, cls 0.5);
 :meth:`DetectorConfig.scaled_gains` applies the scaling that v7.0's ``train.py`` does before
@@ -294,3 +295,19 @@ class TrainConfig:
     def from_dict(cls, d: dict) -> TrainConfig:
         kw = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
         return cls(**kw)
+
+
+# ----------------------------------------------------------------------------- the root
+
+
+@dataclass(frozen=True)
+class DetectConfig:
+    """The detector task's root configuration: the model and its training run.
+
+    A run folder's ``config.json`` is this tree (plus the data set's description under
+    ``data``); ``uavcal detect train --set`` takes its dotted keys (``detector.model``,
+    ``train.lr``, ``train.augment.mosaic``, ``train.predict.conf_thresh``...).
+    """
+
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)

@@ -1,9 +1,11 @@
-"""Detection data sets: read any supported format, and the fixed train/validation split.
+"""Detection data sets for the detector: any label format in the model's class list, and the
+fixed train/validation split.
 
 :func:`load_dataset` reads a Pascal VOC folder, a YOLO folder, a COCO json or a simulator
-output folder (:mod:`.readers`, whose docstring gives the bad-input policy and coordinate
-conventions) into a :class:`~uavcal_jax.detect.records.DetectionDataset`;
-:func:`detect_format` tells them apart. :func:`split_ids` is the fixed split by image.
+output folder (:mod:`uavcal_jax.data.detection_labels`, whose docstring gives the bad-input
+policy and coordinate conventions) into a
+:class:`~uavcal_jax.data.detection_records.DetectionDataset`, expressed in a given class list
+(:func:`remap_classes`). :func:`split_ids` is the fixed split by image.
 
 Missing folders, folders without images and unknown formats raise
 :class:`~uavcal_jax.errors.DataError` naming the path.
@@ -15,46 +17,33 @@ import hashlib
 import json
 from pathlib import Path
 
-from uavcal_jax.data.euroc_format import MAV0, TARGET_FOLDER
-from uavcal_jax.detect.config import TrainConfig
-from uavcal_jax.detect.readers import (
-    find_coco_json,
+import numpy as np
+
+from uavcal_jax.data.detection_labels import (
+    LABEL_FORMATS,
+    detect_format,
     read_coco,
     read_sim_targets,
     read_voc,
     read_yolo,
 )
-from uavcal_jax.detect.records import (
-    DetectionDataset,
-    list_images,
-    remap_classes,
-    require_dir,
-)
+from uavcal_jax.data.detection_records import DetectionDataset, DetectionRecord, require_dir
+from uavcal_jax.detect.config import TrainConfig
 from uavcal_jax.errors import DataError
 
-FORMATS = ("voc", "yolo", "coco", "sim")
 
-
-def detect_format(path: str | Path) -> str:
-    """Guess the format of a data set path: ``voc``, ``yolo``, ``coco`` or ``sim``."""
-    path = require_dir(path)
-    if path.is_file():
-        if path.suffix.lower() == ".json":
-            return "coco"
-        raise DataError("not a data set folder or COCO json", path)
-    if (path / "Annotations").is_dir() and (path / "JPEGImages").is_dir():
-        return "voc"
-    if (path / MAV0 / TARGET_FOLDER).is_dir() or (path / TARGET_FOLDER).is_dir():
-        return "sim"
-    if find_coco_json(path) is not None:
-        return "coco"
-    if (path / "classes.txt").is_file() or any(path.glob("*.txt")) or (path / "labels").is_dir():
-        return "yolo"
-    if list_images(path):
-        return "yolo"  # images only: all negatives
-    raise DataError("cannot tell the data set format (expected VOC Annotations/+JPEGImages/, "
-                    "YOLO images + .txt labels, a COCO json, or a simulator mav0/target0)",
-                    path)
+def remap_classes(ds: DetectionDataset, class_names) -> DetectionDataset:
+    """Express ``ds`` in another class list (by name); boxes of other classes are dropped."""
+    class_names = tuple(class_names)
+    index = {n: i for i, n in enumerate(class_names)}
+    lut = np.array([index.get(n, -1) for n in ds.class_names] + [-1], dtype=np.int32)
+    records = []
+    for r in ds.records:
+        new = lut[r.classes] if len(r.classes) else r.classes
+        keep = new >= 0
+        records.append(DetectionRecord(r.image_path, r.boxes[keep], new[keep].astype(np.int32),
+                                       r.difficult[keep], r.width, r.height, r.image_id))
+    return DetectionDataset(tuple(records), class_names, ds.root, ds.format)
 
 
 def load_dataset(path: str | Path, format: str | None = None, class_names=None, *,
@@ -71,7 +60,8 @@ def load_dataset(path: str | Path, format: str | None = None, class_names=None, 
     elif fmt == "sim":
         ds = read_sim_targets(path, check_images=check_images)
     else:
-        raise DataError(f"unknown data set format {format!r} (expected one of {FORMATS})", path)
+        raise DataError(f"unknown data set format {format!r} (expected one of "
+                        f"{LABEL_FORMATS})", path)
     if class_names is not None and tuple(class_names) != ds.class_names:
         ds = remap_classes(ds, class_names)
     return ds

@@ -29,6 +29,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from uavcal_jax.data.detection_records import IMREAD_FLAGS, DetectionDataset, DetectionRecord
 from uavcal_jax.detect.augment import (
     PAD_VALUE,
     AugmentConfig,
@@ -41,7 +42,6 @@ from uavcal_jax.detect.augment import (
     scale_boxes,
 )
 from uavcal_jax.detect.config import DetectorConfig, TrainConfig
-from uavcal_jax.detect.records import IMREAD_FLAGS, DetectionDataset, DetectionRecord
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 

@@ -252,7 +252,7 @@ def evaluate_predictions(records, detections, num_classes: int,
                          interpolation: str = "coco101") -> MapResult:
     """mAP of per-record detections against the records' ground truth (difficult = ignore).
 
-    ``records``: :class:`~uavcal_jax.detect.datasets.DetectionRecord` s; ``detections``: per
+    ``records``: :class:`~uavcal_jax.data.detection_records.DetectionRecord` s; ``detections``: per
     record ``(boxes (m, 4), scores (m,), classes (m,))`` in the same pixels, e.g.
     :func:`~uavcal_jax.detect.predict.predict_dataset`'s.
     """

@@ -2,11 +2,12 @@
 
 Run folder::
 
-    config.json     resolved detector + train config, data set info
+    config.json     the resolved DetectConfig (detector, train) and the data set's info (data)
     split.json      the train/val image ids (the fixed split; eval reuses it)
     metrics.csv     one row per epoch (losses, lr, map50, map50_95, time)
     metrics.json    the same rows, plus the best epoch and scores
-    curves.png      loss and mAP curves
+    curves.png      loss and mAP curves (drawn by the caller's per-epoch callback,
+                    :func:`uavcal_jax.plots.training_curves_writer`)
     checkpoints/last/<epoch>/  full train state + meta (resume)
     checkpoints/best/<epoch>/  EMA variables of the best epoch + meta
     export/detector.jax        the exported predict function (written by ``uavcal detect``)
@@ -23,9 +24,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
-from uavcal_jax.detect.config import DetectorConfig, TrainConfig
+from uavcal_jax import config as config_io
+from uavcal_jax.detect.config import DetectConfig, DetectorConfig, TrainConfig
 from uavcal_jax.errors import DataError
 
 #: The checkpoints a run keeps: the best EMA weights and the last full train state.
@@ -69,17 +69,23 @@ class RunPaths:
         return self.root / "checkpoints" / which
 
 
+#: The top-level entry of ``config.json`` beside the :class:`DetectConfig` tree.
+DATA_KEY = "data"
+
+
 def write_config(paths: RunPaths, det_cfg: DetectorConfig, cfg: TrainConfig, data: dict
                  ) -> None:
-    """``config.json``: the resolved configurations and the data set's description."""
-    doc = {"detector": det_cfg.to_dict(), "train": cfg.to_dict(), "data": data}
-    paths.config.write_text(json.dumps(doc, indent=1))
+    """``config.json``: the resolved :class:`DetectConfig` and the data set's description
+    (``data``)."""
+    config_io.write_config(paths.config, DetectConfig(det_cfg, cfg), **{DATA_KEY: data})
 
 
-def read_config(paths: RunPaths) -> dict:
+def read_config(paths: RunPaths) -> tuple[DetectConfig, dict]:
+    """The run's :class:`DetectConfig` and its data set's description."""
     if not paths.config.is_file():
         raise DataError("not a training run (no config.json)", paths.root)
-    return json.loads(paths.config.read_text())
+    config = config_io.read_config(paths.config, DetectConfig, ignore=(DATA_KEY,))
+    return config, json.loads(paths.config.read_text())[DATA_KEY]
 
 
 def read_split(paths: RunPaths) -> dict | None:
@@ -99,47 +105,14 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
             w.writerow({k: r.get(k, "") for k in keys})
 
 
-def plot_curves(path: Path, rows: list[dict], title: str = "") -> None:
-    """Loss and mAP per epoch into a PNG (matplotlib, Agg)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    epochs = [r["epoch"] for r in rows]
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.6))
-    for key in ("loss", "box", "obj", "cls"):
-        if any(key in r for r in rows):
-            ax1.plot(epochs, [r.get(key, np.nan) for r in rows], label=key)
-    ax1.set_xlabel("epoch")
-    ax1.set_ylabel("train loss")
-    ax1.set_yscale("log")
-    ax1.legend()
-    for key in ("map50", "map50_95"):
-        xs = [r["epoch"] for r in rows if r.get(key) is not None]
-        ax2.plot(xs, [r[key] for r in rows if r.get(key) is not None], "o-", label=key)
-    ax2.set_xlabel("epoch")
-    ax2.set_ylabel("validation mAP")
-    ax2.legend()
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
 def write_metrics(paths: RunPaths, history: list[dict], best_epoch: int | None,
-                  best_score: float | None, select_metric: str, title: str = "") -> None:
-    """``metrics.csv``, ``metrics.json`` and ``curves.png`` of the epochs so far."""
+                  best_score: float | None, select_metric: str) -> None:
+    """``metrics.csv`` and ``metrics.json`` of the epochs so far."""
     _write_csv(paths.csv, history)
     paths.json.write_text(json.dumps({
         "history": history, "best_epoch": best_epoch,
         "best_score": None if best_score is None or best_score == -math.inf else best_score,
         "select_metric": select_metric}, indent=1))
-    try:
-        plot_curves(paths.png, history, title=title)
-    except Exception as err:  # noqa: BLE001 - a plot must never stop training
-        paths.png.with_suffix(".txt").write_text(f"plot failed: {err}\n")
 
 
 @dataclass(frozen=True)
@@ -165,9 +138,8 @@ def load_run(run: str | Path, which: str = "best") -> LoadedRun:
     from uavcal_jax.detect.step import abstract_variables, init_train_state
 
     paths = RunPaths(Path(run))
-    doc = read_config(paths)
-    det_cfg = DetectorConfig.from_dict(doc["detector"])
-    train_cfg = TrainConfig.from_dict(doc["train"])
+    config, data = read_config(paths)
+    det_cfg, train_cfg = config.detector, config.train
     abstract = abstract_variables(det_cfg)
     with Checkpoints(paths.checkpoints(which), read_only=True) as ck:
         if which == "best":
@@ -178,5 +150,5 @@ def load_run(run: str | Path, which: str = "best") -> LoadedRun:
                                                              tx))
             state, meta = ck.restore(st_abs)
             variables = state.variables(train_cfg.ema)
-    return LoadedRun(paths.root, det_cfg, train_cfg, doc["data"], read_split(paths),
+    return LoadedRun(paths.root, det_cfg, train_cfg, data, read_split(paths),
                      variables, meta)

@@ -24,10 +24,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from uavcal_jax.data.detection_records import DetectionDataset
 from uavcal_jax.detect.anchors import check_anchors, label_sizes
 from uavcal_jax.detect.checkpoint import Checkpoints
 from uavcal_jax.detect.config import DetectorConfig, TrainConfig
-from uavcal_jax.detect.datasets import DetectionDataset, load_dataset, save_split, split_ids
+from uavcal_jax.detect.datasets import load_dataset, save_split, split_ids
 from uavcal_jax.detect.loader import DetectionLoader
 from uavcal_jax.detect.metrics import evaluate_predictions, fitness
 from uavcal_jax.detect.optim import current_lr
@@ -67,9 +68,9 @@ def _resolve(paths: RunPaths, dataset: DetectionDataset, det_cfg: DetectorConfig
         return det_cfg, cfg, train_set, val_set
     if not paths.config.is_file():
         raise DataError("nothing to resume (no config.json)", paths.root)
-    saved = read_config(paths)
-    det_cfg = DetectorConfig.from_dict(saved["detector"])
-    cfg = dataclasses.replace(TrainConfig.from_dict(saved["train"]), epochs=cfg.epochs)
+    saved, _ = read_config(paths)
+    det_cfg = saved.detector
+    cfg = dataclasses.replace(saved.train, epochs=cfg.epochs)
     split = read_split(paths)
     if split is not None and split.get("val") is not None and val_dataset is None:
         return (det_cfg, cfg, dataset.subset(split["train"]),
@@ -95,7 +96,8 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
           out_dir: str | Path, *, resume: bool = False, val_dataset: DetectionDataset | None =
           None, data_format: str | None = None, progress: Callable | None = None,
           log: Callable[[str], None] | None = None, max_steps_per_epoch: int | None = None,
-          stop_after: int | None = None) -> dict:
+          stop_after: int | None = None,
+          on_epoch: Callable[[list[dict], DetectorConfig], None] | None = None) -> dict:
     """Train ``det_cfg`` on ``dataset`` with ``cfg``; write the run folder ``out_dir``.
 
     Args:
@@ -109,6 +111,9 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
         max_steps_per_epoch: cap batches per epoch (tests, smoke runs).
         stop_after: stop after this many epochs of this call (checkpoint written), as if
             interrupted; ``resume=True`` continues (the schedule is that of ``cfg.epochs``).
+        on_epoch: called after each epoch's checkpoint and metrics with the history so far
+            (one dict per epoch, as in ``metrics.json``) and the resolved detector config;
+            e.g. :func:`uavcal_jax.plots.training_curves_writer` draws ``curves.png``.
 
     Returns a summary dict: run folder, epochs, best epoch and its scores, final losses.
     """
@@ -201,8 +206,9 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
                 best.save(epoch + 1, state.variables(cfg.ema),
                           {**meta, "select_metric": cfg.select_metric})
             last.save(epoch + 1, state, meta)
-            write_metrics(paths, history, best_epoch, best_score, cfg.select_metric,
-                          det_cfg.model)
+            write_metrics(paths, history, best_epoch, best_score, cfg.select_metric)
+            if on_epoch is not None:
+                on_epoch(history, det_cfg)
             if log is not None:
                 log(json.dumps({k: (round(v, 4) if isinstance(v, float) else v)
                                 for k, v in row.items()}))

@@ -15,9 +15,10 @@ import json
 import shutil
 from pathlib import Path
 
+from uavcal_jax.data.sim_config import SIM_CONFIG_FILE
 from uavcal_jax.data.tum import read_tum
 from uavcal_jax.sim.config import SimConfig
-from uavcal_jax.sim.simulate import SIM_CONFIG_FILE, simulate
+from uavcal_jax.sim.simulate import simulate
 
 __all__ = ["cached_simulation", "config_tag", "trajectory_span"]
 

@@ -13,6 +13,10 @@ it reuses cached rays (the undistortion runs once per lens), and with a traced c
 computes them in the graph (XLA hoists that out of a ``vmap`` over poses). For throughput use
 :func:`make_renderer` (or :func:`render_batch`): one compiled function per camera, resolution,
 colour mode and batch size, several frames per call.
+
+One module, over 450 lines: ray bundles, per-tile culling, slab intersection and shading are
+the stages of one jitted function and share its private array layout (tiles of packed rays);
+split apart, each piece would export that layout for a single caller.
 """
 
 from __future__ import annotations

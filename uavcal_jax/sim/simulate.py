@@ -37,7 +37,6 @@ byte-identical files.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import shutil
 import tempfile
@@ -56,6 +55,7 @@ from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.data.euroc_rig import euroc_imu_mounting
 from uavcal_jax.data.euroc_writer import EurocWriter
 from uavcal_jax.data.sequence import GroundTruth, ImuCalibration, ImuData
+from uavcal_jax.data.sim_config import SIM_CONFIG_FILE, write_sim_config
 from uavcal_jax.data.tum import read_tum
 from uavcal_jax.errors import DataError
 from uavcal_jax.imu.noise import EUROC_ADIS16448
@@ -67,12 +67,8 @@ from uavcal_jax.sim.frames import render_frames
 from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import fit_tum_trajectory
 
-__all__ = ["SIM_CONFIG_FILE", "SimReport", "imu_calibration", "load_flight", "mount_imu",
-           "simulate", "simulate_report"]
-
-#: The resolved configuration, written beside ``mav0``; it also marks a folder as a simulation
-#: (one that ``overwrite`` may replace).
-SIM_CONFIG_FILE = "sim_config.json"
+__all__ = ["SimReport", "imu_calibration", "load_flight", "mount_imu", "simulate",
+           "simulate_report"]
 
 
 @dataclass
@@ -81,7 +77,7 @@ class SimReport:
 
     Attributes:
         root: the output folder (holds ``mav0`` and ``sim_config.json``).
-        resolved: the content of ``sim_config.json``.
+        resolved: the content of ``sim_config.json`` (:mod:`uavcal_jax.data.sim_config`).
         timings: wall seconds per stage: ``trajectory_imu``, ``compile`` (renderer, first
             call), ``render`` (waiting for JAX), ``write`` (waiting for the PNG encoders and
             writing tables), ``encode`` (PNG encoder thread time, overlapped with rendering),
@@ -237,7 +233,7 @@ def simulate_report(config: SimConfig, out_dir: str | Path, progress: bool = Tru
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
     try:
         report = _simulate_into(config, tmp, progress)
-        (tmp / SIM_CONFIG_FILE).write_text(json.dumps(report.resolved, indent=2) + "\n")
+        write_sim_config(tmp, report.resolved)
         if out_dir.exists():
             trash = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
             os.replace(out_dir, trash / "old")

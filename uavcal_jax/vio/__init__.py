@@ -1,17 +1,22 @@
 """Stereo visual-inertial odometry (RPEOD sec. 3.1-3.3; VINS-Fusion's design).
 
-Modules, one job each. Front end (OpenCV, NumPy):
+Modules, one job each. Settings:
 
-* :mod:`~uavcal_jax.vio.frontend` and :mod:`~uavcal_jax.vio.frontend_config`: Shi-Tomasi
-  corners, pyramidal Lucas-Kanade with a forward-backward check, outlier rejection on
-  undistorted points, left-to-right stereo matches.
+* :mod:`~uavcal_jax.vio.config`: every setting, one tree (:class:`VioConfig`: front end,
+  keyframes, cost, solver, marginalisation, failure limits, initial prior) and
+  :func:`resolve_camera`, which fills the camera-dependent values from the recording.
+
+Front end (OpenCV, NumPy):
+
+* :mod:`~uavcal_jax.vio.frontend`: Shi-Tomasi corners, pyramidal Lucas-Kanade with a
+  forward-backward check, outlier rejection on undistorted points, left-to-right stereo
+  matches.
 * :mod:`~uavcal_jax.vio.keyframes`: the keyframe decision on gyro-compensated parallax.
 
 Back end (JAX, pure functions):
 
 * :mod:`~uavcal_jax.vio.window`: the sliding-window pytrees (fixed capacities, masks) and the
   retraction ``x ⊞ delta``.
-* :mod:`~uavcal_jax.vio.config`: :class:`CostConfig`, :class:`SolverConfig`.
 * :mod:`~uavcal_jax.vio.robust`: Huber / Cauchy functions of the squared residual.
 * :mod:`~uavcal_jax.vio.residuals`: reprojection, IMU and prior residuals; ``window_cost``.
 * :mod:`~uavcal_jax.vio.normal`: the structured normal equations and their Schur solve.
@@ -22,20 +27,27 @@ Back end (JAX, pure functions):
 * :mod:`~uavcal_jax.vio.implicit`: gradients of the solution by implicit differentiation.
 * :mod:`~uavcal_jax.vio.synthetic`: an exactly consistent synthetic window.
 
-Evaluation: :mod:`~uavcal_jax.vio.trajectory_metrics` (ATE and RPE with evo's alignment,
-trajectory plots).
+Evaluation: :mod:`~uavcal_jax.vio.trajectory_metrics` (ATE and RPE with evo's alignment; the
+trajectory plot is :func:`uavcal_jax.plots.plot_trajectories`).
 
 Everything is float64 under ``jax.enable_x64(True)``.
 """
 
-from uavcal_jax.vio.config import CostConfig, SolverConfig
+from uavcal_jax.vio.config import (
+    CostConfig,
+    FailureLimits,
+    FrontendConfig,
+    InitialPrior,
+    KeyframeConfig,
+    MarginalizeConfig,
+    SolverConfig,
+    VioConfig,
+    resolve_camera,
+)
 from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures
-from uavcal_jax.vio.frontend_config import FrontendConfig, KeyframeConfig
 from uavcal_jax.vio.implicit import solve_differentiable
 from uavcal_jax.vio.keyframes import KeyframeDecision, body_to_camera_rotation, keyframe_decision
 from uavcal_jax.vio.marginalize import (
-    ImuSamples,
-    MarginalizeConfig,
     drop_second_newest,
     marginal_information,
     marginalize_oldest,
@@ -60,14 +72,13 @@ from uavcal_jax.vio.trajectory_metrics import (
     AteResult,
     RpeResult,
     ate,
-    plot_trajectories,
     rpe,
     trajectory_errors,
 )
 from uavcal_jax.vio.window import (
-    DEFAULT_KEYFRAMES,
     CalibParams,
     ImuFactors,
+    ImuSamples,
     Keyframes,
     Landmarks,
     Observations,
@@ -81,7 +92,6 @@ from uavcal_jax.vio.window import (
 
 __all__ = [
     "AteResult",
-    "DEFAULT_KEYFRAMES",
     "FeatureTracker",
     "FrameFeatures",
     "FrontendConfig",
@@ -91,11 +101,12 @@ __all__ = [
     "ate",
     "body_to_camera_rotation",
     "keyframe_decision",
-    "plot_trajectories",
     "rpe",
     "trajectory_errors",
     "CalibParams",
     "CostConfig",
+    "FailureLimits",
+    "InitialPrior",
     "ImuFactors",
     "ImuSamples",
     "JaxoptSolver",
@@ -109,6 +120,7 @@ __all__ = [
     "Solver",
     "SolverConfig",
     "StructuredSolver",
+    "VioConfig",
     "WindowProblem",
     "WindowState",
     "drop_second_newest",
@@ -120,6 +132,7 @@ __all__ = [
     "normal_equations",
     "prior_from_information",
     "factor_residuals",
+    "resolve_camera",
     "retract",
     "slide_imu_samples",
     "solve_differentiable",

@@ -22,6 +22,10 @@ back end's arrays keep their shapes. Coordinates: pixels ``(u, v)`` with integer
 pixel centres (OpenCV's convention); undistorted normalised ``(x/z, y/z)`` in each camera's
 frame (x right, y down, z forward), computed with OpenCV's radial-tangential model -- the
 model of :mod:`uavcal_jax.geometry.camera` -- iterated to convergence.
+
+One module, over 450 lines: the five steps above are one tracker's per-frame pass over its own
+state (previous corners, ids, track ages, previous disparities); the pure pieces that another
+caller uses (outlier rejection, the epipolar distance) are module functions.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ import numpy as np
 
 from uavcal_jax.data.sequence import CameraCalibration, Sequence
 from uavcal_jax.geometry.camera import from_calibration
-from uavcal_jax.vio.frontend_config import FrontendConfig
+from uavcal_jax.vio.config import NOMINAL_FOCAL_PX, FrontendConfig
 from uavcal_jax.vio.keyframes import body_to_camera_rotation
 
 __all__ = ["FeatureTracker", "FrameFeatures", "reject_outliers", "stereo_epipolar_distance"]
@@ -126,12 +130,12 @@ def reject_outliers(xy0: np.ndarray, xy1: np.ndarray, config: FrontendConfig) ->
 
     With ``config.outlier_method`` ``"fundamental"`` a fundamental matrix is fitted (by
     ``config.estimator``) to the points put on a virtual pinhole of focal
-    ``virtual_focal_px`` (VINS-Mono's ``rejectWithF``; centring it on the image, as VINS
-    does, changes nothing: OpenCV normalises the points first); with ``"essential"`` an
-    essential matrix to the normalised points, threshold ``ransac_threshold_px /
-    virtual_focal_px``. ``"none"`` keeps everything, as do fewer than 8 matches and a
-    degenerate set that gives no model (OpenCV returns none, raises, or finds fewer inliers
-    than a minimal sample).
+    :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX` (VINS-Mono's ``rejectWithF``; centring
+    it on the image, as VINS does, changes nothing: OpenCV normalises the points first); with
+    ``"essential"`` an essential matrix to the normalised points, threshold
+    ``ransac_threshold_px / NOMINAL_FOCAL_PX``. ``"none"`` keeps everything, as do fewer than
+    8 matches and a degenerate set that gives no model (OpenCV returns none, raises, or finds
+    fewer inliers than a minimal sample).
 
     Args:
         xy0, xy1: (N, 2) the matches in the previous and the current frame.
@@ -147,7 +151,7 @@ def reject_outliers(xy0: np.ndarray, xy1: np.ndarray, config: FrontendConfig) ->
     usac = config.estimator == "usac"
     try:
         if config.outlier_method == "fundamental":
-            f = config.virtual_focal_px
+            f = NOMINAL_FOCAL_PX
             _, inl = cv2.findFundamentalMat(xy0 * f, xy1 * f,
                                             cv2.USAC_FM_8PTS if usac else cv2.FM_RANSAC,
                                             config.ransac_threshold_px, config.ransac_confidence)
@@ -155,7 +159,7 @@ def reject_outliers(xy0: np.ndarray, xy1: np.ndarray, config: FrontendConfig) ->
             _, inl = cv2.findEssentialMat(xy0, xy1, np.eye(3),
                                           cv2.USAC_DEFAULT if usac else cv2.RANSAC,
                                           config.ransac_confidence,
-                                          config.ransac_threshold_px / config.virtual_focal_px)
+                                          config.ransac_threshold_px / NOMINAL_FOCAL_PX)
     except cv2.error:
         # OpenCV 5's USAC asserts (``!model.empty()``) where 4.x returned no model, on match
         # sets with no non-degenerate 8-point sample (seen on a simulated EuRoC flight)

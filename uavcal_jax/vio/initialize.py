@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from uavcal_jax.vio.estimator_config import InitialPrior
+from uavcal_jax.vio.config import InitialPrior
 from uavcal_jax.vio.window import FRAME_DIM, Keyframes, Prior
 
 __all__ = [

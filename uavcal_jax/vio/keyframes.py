@@ -12,7 +12,8 @@ Frames and conventions:
   frame (``X_kf = R_kf_cur @ X_cur`` for a pure rotation). :func:`body_to_camera_rotation`
   turns the gyro's body-frame (IMU-frame) rotation into it.
 * Feature positions are undistorted normalised coordinates ``(x/z, y/z)`` of the camera frame
-  (x right, y down, z forward); parallax is reported in pixels at ``KeyframeConfig.focal_px``.
+  (x right, y down, z forward); parallax is reported in pixels at
+  :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX`.
 
 Pure NumPy, float64.
 """
@@ -23,7 +24,7 @@ import dataclasses
 
 import numpy as np
 
-from uavcal_jax.vio.frontend_config import KeyframeConfig
+from uavcal_jax.vio.config import NOMINAL_FOCAL_PX, KeyframeConfig
 
 __all__ = [
     "KeyframeDecision",
@@ -42,7 +43,7 @@ class KeyframeDecision:
         reason: ``"first"``, ``"few_tracked"``, ``"few_common"``, ``"parallax"`` or ``""``
             (not a keyframe).
         parallax_px: mean rotation-compensated parallax over the shared features, pixels at
-            ``focal_px`` (``nan`` when there are none).
+            :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX` (``nan`` when there are none).
         parallax_uncompensated_px: the same without the rotation compensation (VINS-Fusion's
             figure), for diagnostics.
         n_tracked: valid features in the current frame.
@@ -114,7 +115,7 @@ def keyframe_decision(kf_ids: np.ndarray | None, kf_xy: np.ndarray | None,
     features, when it shares fewer than ``config.min_common`` with the last keyframe, or when
     the mean parallax of the shared features after removing the rotation ``R_kf_cur``
     (:func:`compensated_parallax`) is at least ``config.min_parallax_px`` pixels at
-    ``config.focal_px``.
+    :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX`.
 
     Args:
         kf_ids: (M,) int feature ids of the last keyframe (padding ids < 0 are ignored), or
@@ -148,8 +149,8 @@ def keyframe_decision(kf_ids: np.ndarray | None, kf_xy: np.ndarray | None,
     parallax, valid = compensated_parallax(xy_kf, xy_cur, R_kf_cur)
     raw, _ = compensated_parallax(xy_kf, xy_cur, None)
     n_common = int(valid.sum())
-    mean_px = float(np.mean(parallax[valid]) * config.focal_px) if n_common else float("nan")
-    raw_px = float(np.mean(raw) * config.focal_px) if raw.size else float("nan")
+    mean_px = float(np.mean(parallax[valid]) * NOMINAL_FOCAL_PX) if n_common else float("nan")
+    raw_px = float(np.mean(raw) * NOMINAL_FOCAL_PX) if raw.size else float("nan")
 
     if n_tracked < config.min_tracked:
         reason = "few_tracked"

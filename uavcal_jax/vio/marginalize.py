@@ -29,11 +29,11 @@ and observation frames.
 Frame ``n - 1`` is removed and its visual measurements discarded, no information kept from
 them (VINS-Mono); if the prior involves the frame, the frame is marginalised out of the prior
 alone (VINS-Mono's ``drop_set``). Its two IMU intervals are merged by re-preintegrating
-their concatenated raw samples from :class:`ImuSamples` (VINS-Mono's ``push_back`` of the
-buffered samples onto interval ``n - 2``), at that interval's integration biases. A landmark
-anchored in the dropped frame is re-anchored in the newest frame's left-camera observation
-(VINS-Mono's ``removeFront``: ``start_frame--``), its inverse depth carried over through the
-current estimate; without such an observation it is dropped.
+their concatenated raw samples from :class:`~uavcal_jax.vio.window.ImuSamples` (VINS-Mono's
+``push_back`` of the buffered samples onto interval ``n - 2``), at that interval's
+integration biases. A landmark anchored in the dropped frame is re-anchored in the newest
+frame's left-camera observation (VINS-Mono's ``removeFront``: ``start_frame--``), its inverse
+depth carried over through the current estimate; without such an observation it is dropped.
 
 All functions are pure and jit-able with static shapes; call them under
 ``jax.enable_x64(True)`` as the rest of the back end.
@@ -47,13 +47,15 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from uavcal_jax.imu import EUROC_ADIS16448, ImuNoise, preintegrate
+from uavcal_jax.imu import ImuNoise, preintegrate
+from uavcal_jax.vio.config import MarginalizeConfig
 from uavcal_jax.vio.normal import normal_equations
 from uavcal_jax.vio.residuals import imu_mask, observation_mask
 from uavcal_jax.vio.window import (
     FRAME_DIM,
     CalibParams,
     ImuFactors,
+    ImuSamples,
     Keyframes,
     Landmarks,
     Observations,
@@ -64,8 +66,6 @@ from uavcal_jax.vio.window import (
 )
 
 __all__ = [
-    "ImuSamples",
-    "MarginalizeConfig",
     "drop_second_newest",
     "marginal_information",
     "marginalize_oldest",
@@ -73,55 +73,6 @@ __all__ = [
 ]
 
 _D = FRAME_DIM
-
-
-def _register(cls):
-    jax.tree_util.register_dataclass(
-        cls, data_fields=[f.name for f in dataclasses.fields(cls)], meta_fields=[])
-    return cls
-
-
-@dataclasses.dataclass(frozen=True)
-class MarginalizeConfig:
-    """Thresholds of the marginalisation (static, hashable).
-
-    Both act on Jacobi-equilibrated matrices (unit diagonal), so they are relative and free of
-    units; VINS-Fusion clips the raw eigenvalues at ``1e-8`` absolute, which with this window's
-    information spread (diagonal from about 1e2 for a position to 1e12 for a bias random walk)
-    would be scale dependent.
-
-    Attributes:
-        pinv_eps: eigenvalues of the eliminated block (keyframe 0, equilibrated) below this are
-            treated as zero in its pseudo-inverse (an unconstrained direction carries nothing).
-            The same relative threshold applies to a landmark's scalar information.
-        prior_eps: eigenvalues of the reduced information (equilibrated) below this carry no
-            information in the prior (``prior_from_information``'s ``eps``): the gauge
-            directions, which the factors leave exactly unconstrained, fall below it.
-    """
-
-    pinv_eps: float = 1e-12
-    prior_eps: float = 1e-10
-
-
-@dataclasses.dataclass(frozen=True)
-class ImuSamples:
-    """Raw IMU samples of each interval, padded (leading axis ``N - 1``, like ``ImuFactors``).
-
-    Kept beside the window so that two intervals can be merged exactly by re-preintegration.
-
-    Attributes:
-        dt: (N - 1, S) seconds each sample is held for.
-        gyro: (N - 1, S, 3) rad/s.  accel: (N - 1, S, 3) m/s^2 (IMU frame, as measured).
-        mask: (N - 1, S) bool, sample in use (padding ``False``; any order).
-    """
-
-    dt: jax.Array
-    gyro: jax.Array
-    accel: jax.Array
-    mask: jax.Array
-
-
-_register(ImuSamples)
 
 
 # --- helpers ---------------------------------------------------------------------------------
@@ -173,7 +124,7 @@ def _marginalised_landmarks(problem: WindowProblem) -> jax.Array:
 
 @functools.partial(jax.jit, static_argnames=("config",))
 def marginal_information(state: WindowState, problem: WindowProblem, params: CalibParams,
-                         config: MarginalizeConfig = MarginalizeConfig()
+                         config: MarginalizeConfig = MarginalizeConfig()  # noqa: B008
                          ) -> tuple[jax.Array, jax.Array]:
     """``(H (15N, 15N), b (15N,))``: the information of the factors touching keyframe 0 after
     eliminating keyframe 0 and its landmarks, in the *unshifted* slots (rows and columns of
@@ -216,7 +167,7 @@ def marginal_information(state: WindowState, problem: WindowProblem, params: Cal
 
 
 def marginalize_oldest(state: WindowState, problem: WindowProblem, params: CalibParams,
-                       config: MarginalizeConfig = MarginalizeConfig()
+                       config: MarginalizeConfig = MarginalizeConfig()  # noqa: B008
                        ) -> tuple[WindowState, WindowProblem]:
     """Marginalise keyframe 0 into the prior and shift the window one slot down.
 
@@ -282,16 +233,16 @@ def _merge_samples(samples: ImuSamples, i: jax.Array) -> tuple[ImuSamples, jax.A
 
 
 def drop_second_newest(state: WindowState, problem: WindowProblem, samples: ImuSamples,
-                       noise: ImuNoise = EUROC_ADIS16448, params: CalibParams | None = None,
-                       config: MarginalizeConfig = MarginalizeConfig()
+                       noise: ImuNoise, params: CalibParams,
+                       config: MarginalizeConfig = MarginalizeConfig()  # noqa: B008
                        ) -> tuple[WindowState, WindowProblem, ImuSamples]:
     """Remove frame ``n - 1`` (``n``: the newest used slot) and merge its IMU intervals.
 
     ``samples``: the raw samples the intervals were preintegrated from (``noise`` is the model
     they were preintegrated with; the merged interval's covariance shape, 9 or 15, follows
-    the window's). ``params``: the rig used to carry a re-anchored landmark's depth over
-    (EuRoC's by default). The merged interval is flagged invalid (``pim.valid`` False, and its
-    mask cleared) if the two intervals' samples exceed the per-interval capacity ``S``.
+    the window's). ``params``: the rig used to carry a re-anchored landmark's depth over. The
+    merged interval is flagged invalid (``pim.valid`` False, and its mask cleared) if the two
+    intervals' samples exceed the per-interval capacity ``S``.
 
     The prior keeps its information but not the dropped frame: when it involves frame
     ``n - 1`` (it does once a marginalisation has happened: it then covers every older
@@ -302,7 +253,6 @@ def drop_second_newest(state: WindowState, problem: WindowProblem, samples: ImuS
 
     Returns ``(state', problem', samples')`` with the newest frame moved to slot ``n - 1``.
     """
-    params = CalibParams.euroc(state.frames.position.dtype) if params is None else params
     return _drop_second_newest(state, problem, samples, noise, params, config)
 
 

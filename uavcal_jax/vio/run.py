@@ -1,5 +1,8 @@
 """Run the stereo VIO over a whole recorded sequence (EuRoC folder or ROS bag, as read by
-:mod:`uavcal_jax.data`), and the run's result: camera-rate trajectory, flags and timings.
+:mod:`uavcal_jax.data`), and the run's result: camera-rate trajectory, flags, timings, its
+summary (with ATE/RPE against ground truth) and the per-frame table written beside the
+trajectory (:data:`FRAME_COLUMNS`, :func:`write_frames_csv`: the format lives here, beside the
+:class:`~uavcal_jax.vio.estimator.FrameEstimate` whose fields it lists).
 
 Stereo pairing: a left frame is paired with the right frame of the same timestamp (within
 ``PAIR_TOLERANCE_NS``); a left frame without one is processed monocularly (no stereo
@@ -10,11 +13,13 @@ counted in ``VioResult.unreadable``.
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -24,14 +29,20 @@ from uavcal_jax.data.sequence import GroundTruth, ImuData, Sequence
 from uavcal_jax.errors import DataError, DataRepairWarning
 from uavcal_jax.imu import remove_offset
 from uavcal_jax.progress import progress
+from uavcal_jax.vio.config import VioConfig, resolve_camera
 from uavcal_jax.vio.estimator import FrameEstimate, StereoVio
-from uavcal_jax.vio.estimator_config import EstimatorConfig
+from uavcal_jax.vio.stage_timer import TIMING_KEYS
+from uavcal_jax.vio.trajectory_metrics import trajectory_errors
 
-__all__ = ["PAIR_TOLERANCE_NS", "VioResult", "estimate_stream", "one_blas_thread", "run_vio",
-           "stereo_pairs"]
+__all__ = ["FRAME_COLUMNS", "PAIR_TOLERANCE_NS", "VioResult", "estimate_stream",
+           "one_blas_thread", "run_vio", "stereo_pairs", "write_frames_csv"]
 
 #: Largest left/right timestamp difference still paired as one stereo frame, ns.
 PAIR_TOLERANCE_NS = 1_000_000
+#: Columns of the per-frame table (:meth:`VioResult.frame_rows`, :func:`write_frames_csv`):
+#: :class:`~uavcal_jax.vio.estimator.FrameEstimate`'s flags, its cost, and its timings in ms.
+FRAME_COLUMNS = ("t_ns", "status", "reason", "keyframe", "tracked", "stereo", "landmarks",
+                 "iterations", "cost", "frontend_ms", "solve_ms", "marginalize_ms", "total_ms")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,13 +52,14 @@ class VioResult:
     Attributes:
         frames: the per-frame estimates.  resets: failure resets.
         unreadable: left images that could not be read (processed as dropped frames).
-        config: the :class:`EstimatorConfig` used.  imu_offset: (6,) the offset removed.
+        config: the :class:`~uavcal_jax.vio.config.VioConfig` used (resolved against the
+            left camera).  imu_offset: (6,) the offset removed.
     """
 
     frames: list[FrameEstimate]
     resets: int
     unreadable: int
-    config: EstimatorConfig
+    config: VioConfig
     imu_offset: np.ndarray
 
     def trajectory(self) -> GroundTruth:
@@ -67,7 +79,7 @@ class VioResult:
         """Milliseconds per frame of each stage (frames after the first, which compiles);
         ``total`` is the stages' sum, ``wall`` the wall-clock time per frame (less than
         ``total`` when the front end runs concurrently)."""
-        keys = ("frontend", "solve", "marginalize", "total", "wall")
+        keys = (*TIMING_KEYS, "wall")
         rows = [f.timings for f in self.frames[1:] if f.timings]
         return {k: np.array([r.get(k, 0.0) for r in rows]) for k in keys}
 
@@ -82,6 +94,54 @@ class VioResult:
             "landmarks": np.array([f.landmarks for f in self.frames]),
             "status": np.array([f.status for f in self.frames]),
         }
+
+    def frame_rows(self) -> list[tuple]:
+        """The per-frame table: one row of :data:`FRAME_COLUMNS` per frame, as written (text
+        for the cost and the timings: ``%.6g`` and milliseconds to ``%.3f``)."""
+        return [(f.t_ns, f.status, f.reason, int(f.keyframe), f.tracked, f.stereo, f.landmarks,
+                 f.iterations, f"{f.cost:.6g}",
+                 *(f"{f.timings.get(k, 0.0):.3f}"
+                   for k in TIMING_KEYS))
+                for f in self.frames]
+
+    def summary(self, ground_truth: GroundTruth | None = None) -> dict:
+        """JSON-ready counts, timings and, with ``ground_truth`` (and at least 3 poses),
+        ATE/RPE (:func:`~uavcal_jax.vio.trajectory_metrics.trajectory_errors`).
+
+        Keys: ``frames``, ``poses``, ``keyframes``, ``resets``, ``unreadable_frames``,
+        ``nan_poses``, ``mean_tracked``, ``ms_per_frame`` (per stage of :meth:`timings`:
+        ``mean`` and ``p95``, ``None`` without timed frames), ``imu_offset``; with ground
+        truth also ``ate_m``, ``rpe_1m`` and the other keys of ``trajectory_errors``.
+        """
+        flags = self.flags()
+        times = self.timings()
+        traj = self.trajectory()
+        out = {
+            "frames": len(self.frames), "poses": len(traj),
+            "keyframes": int(flags["keyframe"].sum()),
+            "resets": self.resets, "unreadable_frames": self.unreadable,
+            "nan_poses": int(sum(not np.all(np.isfinite(f.position)) for f in self.frames
+                                 if f.has_pose)),
+            "mean_tracked": float(np.mean(flags["tracked"])) if len(flags["tracked"]) else 0.0,
+            "ms_per_frame": {k: {"mean": float(np.mean(v)) if len(v) else None,
+                                 "p95": float(np.percentile(v, 95)) if len(v) else None}
+                             for k, v in times.items()},
+            "imu_offset": self.imu_offset.tolist(),
+        }
+        if ground_truth is not None and len(traj) >= 3:
+            out |= trajectory_errors(traj, ground_truth)
+        return out
+
+
+def write_frames_csv(path: str | Path, result: VioResult) -> Path:
+    """Write ``result``'s per-frame table (:data:`FRAME_COLUMNS`, :meth:`VioResult.frame_rows`)
+    as CSV with a header row. Returns ``path``."""
+    path = Path(path)
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(FRAME_COLUMNS)
+        w.writerows(result.frame_rows())
+    return path
 
 
 def stereo_pairs(sequence: Sequence, left: str = "cam0", right: str = "cam1"
@@ -108,14 +168,16 @@ def _corrected_imu(imu: ImuData, offset: np.ndarray) -> ImuData:
                                accel=np.asarray(accel, np.float64))
 
 
-def run_vio(sequence: Sequence, config: EstimatorConfig | None = None,
+def run_vio(sequence: Sequence, config: VioConfig | None = None,
             imu_offset=None, *, show_progress: bool = False, max_frames: int | None = None,
             left: str = "cam0", right: str = "cam1", pipelined: bool = True) -> VioResult:
     """Stereo VIO over ``sequence``.
 
     Args:
         sequence: with an IMU stream, its calibration and two cameras.
-        config: the estimator's settings (default :class:`EstimatorConfig`).
+        config: the estimator's settings (default :class:`~uavcal_jax.vio.config.VioConfig`);
+            its camera-dependent values are resolved against the left camera
+            (:func:`~uavcal_jax.vio.config.resolve_camera`).
         imu_offset: (6,) constant IMU offset (gyro rad/s, accel m/s^2) subtracted from every
             sample first (the calibrator's output); ``None``: none.
         show_progress: a progress bar on stderr.  max_frames: stop after this many frames.
@@ -136,6 +198,7 @@ def run_vio(sequence: Sequence, config: EstimatorConfig | None = None,
     if not np.all(np.isfinite(offset)):
         raise DataError(f"the IMU offset must be finite, got {offset.tolist()}")
     cam0, cam1 = sequence.camera(left), sequence.camera(right)
+    config = resolve_camera(config if config is not None else VioConfig(), cam0.calibration)
     vio = StereoVio(cam0.calibration, cam1.calibration, sequence.imu_calibration,
                     _corrected_imu(sequence.imu, offset), config)
     pairs = stereo_pairs(sequence, left, right)

@@ -23,11 +23,16 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from uavcal_jax.data.euroc_rig import EUROC_CAM0_T_BS, euroc_camera
+from uavcal_jax.data.euroc_rig import (
+    EUROC_CAM0_T_BS,
+    EUROC_CAM1_T_BS,
+    euroc_calibration,
+    euroc_camera,
+)
 from uavcal_jax.geometry.camera import pixels_to_normalized, project
 from uavcal_jax.geometry.frames import GRAVITY_W
 from uavcal_jax.imu import EUROC_ADIS16448, NavState, predict, preintegrate
-from uavcal_jax.vio.config import CostConfig
+from uavcal_jax.vio.config import CostConfig, resolve_cost
 from uavcal_jax.vio.window import (
     FRAME_DIM,
     CalibParams,
@@ -42,7 +47,8 @@ from uavcal_jax.vio.window import (
     retract_frames,
 )
 
-__all__ = ["SyntheticConfig", "SyntheticWindow", "imu_samples", "perturb", "synthetic_window"]
+__all__ = ["SyntheticConfig", "SyntheticWindow", "euroc_params", "imu_samples", "perturb",
+           "synthetic_window"]
 
 _AMP = np.array([0.3, 0.6, 0.2])
 _OMEGA = np.array([1.1, 0.9, 1.7])
@@ -136,6 +142,15 @@ _project = jax.jit(project)
 _normalized = jax.jit(pixels_to_normalized)
 
 
+def euroc_params(dtype=None) -> CalibParams:
+    """EuRoC's stereo rig (cam0 and cam1 ``T_BS``) and a zero offset: the rig of the
+    synthetic window (the estimator takes the recording's own, never this one)."""
+    dtype = dtype or jnp.result_type(float)
+    T = np.stack([EUROC_CAM0_T_BS, EUROC_CAM1_T_BS])
+    return CalibParams(jnp.zeros(6, dtype), jnp.asarray(T[:, :3, :3], dtype),
+                       jnp.asarray(T[:, :3, 3], dtype))
+
+
 def _pick(tree, k):
     return jax.tree_util.tree_map(lambda x: x[k], tree)
 
@@ -144,13 +159,15 @@ def synthetic_window(config: SyntheticConfig | None = None, seed: int = 0,
                      cost_config: CostConfig | None = None, noise=None) -> SyntheticWindow:
     """Build the window (see the module docstring). ``noise``: the IMU noise model of the
     preintegration (``None``: EuRoC's ADIS16448);
-    ``config`` and ``cost_config`` default to their classes' defaults."""
+    ``config`` and ``cost_config`` default to their classes' defaults; an unset
+    ``cost_config.focal_px`` becomes EuRoC cam0's ``fx`` (the window's rig)."""
     config = SyntheticConfig() if config is None else config
-    cost_config = CostConfig() if cost_config is None else cost_config
+    cost_config = resolve_cost(CostConfig() if cost_config is None else cost_config,
+                               euroc_calibration(0))
     noise = EUROC_ADIS16448 if noise is None else noise
     rng = np.random.default_rng(seed)
     N, L = config.n_frames, config.n_landmarks
-    params = CalibParams.euroc(jnp.float64)
+    params = euroc_params(jnp.float64)
     cams = (euroc_camera(0, jnp.float64), euroc_camera(1, jnp.float64))
     off = np.asarray(config.imu_offset, np.float64)
 

@@ -1,4 +1,5 @@
-"""Trajectory accuracy: ATE and RPE as evo computes them, and a plot of estimate against truth.
+"""Trajectory accuracy: ATE and RPE as evo computes them (the plot of estimate against truth is
+:func:`uavcal_jax.plots.plot_trajectories`).
 
 A trajectory is a :class:`~uavcal_jax.data.sequence.GroundTruth` (what
 :func:`~uavcal_jax.data.tum.read_tum` returns; any object with ``t_ns``, ``position`` and
@@ -28,7 +29,6 @@ saying which trajectory is at fault and why.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -342,53 +342,6 @@ def rpe(estimate: Any, ground_truth: Any, *, delta: float = 1, unit: str = "fram
     rot = np.rad2deg((rel_gt.inv() * rel_est).magnitude())
     return RpeResult(Statistics.of(trans), Statistics.of(rot), trans, rot, pairs,
                      float(delta), unit, a)
-
-
-def plot_trajectories(estimate: Any, ground_truth: Any, path: str | Path, *,
-                      alignment: str = ALIGNMENTS[0],
-                      max_diff_s: float = DEFAULT_MAX_TIME_DIFF_S,
-                      title: str | None = None) -> Path:
-    """Write a PNG of the aligned estimate against the truth: top view (x-y) and height (z).
-
-    The estimate is associated and aligned as in :func:`ate` (whose RMSE goes in the title);
-    the ground truth is drawn over the estimate's time span (a short run on a long recording
-    would otherwise be lost in it). Returns ``path``.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    gt_full = as_trajectory(ground_truth, "ground truth")
-    result = ate(estimate, gt_full, alignment=alignment, max_diff_s=max_diff_s)
-    est = result.aligned
-    span = (gt_full.t_ns >= est.t_ns[0]) & (gt_full.t_ns <= est.t_ns[-1])
-    if span.sum() < 2:
-        span = np.ones(len(gt_full.t_ns), bool)
-    gt_t, gt_p = gt_full.t_ns[span], gt_full.position[span]
-    # Figure + Agg canvas directly: no pyplot global state, no display needed.
-    fig = Figure(figsize=(11, 4.8), dpi=100)
-    FigureCanvasAgg(fig)
-    top, height = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.4]})
-    top.plot(gt_p[:, 0], gt_p[:, 1], "k-", lw=1.2, label="ground truth")
-    top.plot(est.position[:, 0], est.position[:, 1], "r-", lw=1.0, label="estimate (aligned)")
-    top.plot(*gt_p[0, :2], "ko", ms=4)
-    top.set(xlabel="x [m]", ylabel="y [m]", title="top view")
-    top.set_aspect("equal", adjustable="datalim")
-    top.legend(loc="best", fontsize=8)
-    t0 = gt_t[0]
-    height.plot((gt_t - t0) * 1e-9, gt_p[:, 2], "k-", lw=1.2,
-                label="ground truth")
-    height.plot((est.t_ns - t0) * 1e-9, est.position[:, 2], "r-", lw=1.0,
-                label="estimate (aligned)")
-    height.set(xlabel="time [s]", ylabel="z [m]", title="height")
-    height.grid(alpha=0.3)
-    rmse = result.translation.rmse
-    fig.suptitle((title + "  " if title else "")
-                 + f"ATE RMSE {rmse:.4f} m ({alignment}, {result.translation.count} poses)")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
-    return path
 
 
 def trajectory_errors(estimate: Any, ground_truth: Any, rpe_delta_m: float = 1.0) -> dict:

@@ -3,7 +3,7 @@
 Everything is padded to fixed capacities with masks, so a jitted solve compiles once per
 ``(N, L, M)`` and never per frame:
 
-* ``N`` keyframe slots (default :data:`DEFAULT_KEYFRAMES`, RPEOD eq. 6), time-ordered; slot
+* ``N`` keyframe slots (:attr:`~uavcal_jax.vio.config.VioConfig.keyframes`), time-ordered; slot
   ``k`` and ``k + 1`` are joined by IMU interval ``k``. Each keyframe has the body (IMU)
   pose in the world frame, the world-frame velocity and the two biases: 15 tangent
   dimensions in the order of :data:`ROT`, :data:`POS`, :data:`VEL`, :data:`BG`,
@@ -33,9 +33,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from uavcal_jax.data.euroc_rig import EUROC_CAM0_T_BS, EUROC_CAM1_T_BS
 from uavcal_jax.geometry import so3
 from uavcal_jax.imu import Preintegrated
 from uavcal_jax.vio.config import CostConfig
@@ -43,7 +41,6 @@ from uavcal_jax.vio.config import CostConfig
 __all__ = [
     "BA",
     "BG",
-    "DEFAULT_KEYFRAMES",
     "FRAME_DIM",
     "POS",
     "POSE_DIM",
@@ -51,6 +48,7 @@ __all__ = [
     "VEL",
     "CalibParams",
     "ImuFactors",
+    "ImuSamples",
     "Keyframes",
     "Landmarks",
     "Observations",
@@ -63,8 +61,6 @@ __all__ = [
     "retract_frames",
 ]
 
-#: Keyframes in the window (RPEOD, VINS-Fusion's ``WINDOW_SIZE + 1``).
-DEFAULT_KEYFRAMES = 10
 #: Tangent dimensions of one keyframe and of its pose part (the first six).
 FRAME_DIM = 15
 POSE_DIM = 6
@@ -156,6 +152,26 @@ class ImuFactors:
 
 
 @dataclasses.dataclass(frozen=True)
+class ImuSamples:
+    """Raw IMU samples of each interval, padded (leading axis ``N - 1``, like ``ImuFactors``;
+    one interval's row has no leading axis).
+
+    Kept beside the window so that two intervals can be merged exactly by re-preintegration
+    (:func:`~uavcal_jax.vio.marginalize.drop_second_newest`).
+
+    Attributes:
+        dt: (N - 1, S) seconds each sample is held for.
+        gyro: (N - 1, S, 3) rad/s.  accel: (N - 1, S, 3) m/s^2 (IMU frame, as measured).
+        mask: (N - 1, S) bool, sample in use (padding ``False``; any order).
+    """
+
+    dt: jax.Array
+    gyro: jax.Array
+    accel: jax.Array
+    mask: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
 class Prior:
     """Linear marginalisation prior over the keyframe block, as a whitened residual.
 
@@ -184,7 +200,8 @@ class WindowProblem:
     Attributes:
         frame_mask: (N,) bool, keyframe slot in use.
         landmarks, observations, imu, prior: see their classes.
-        config: :class:`~uavcal_jax.vio.config.CostConfig` (static metadata).
+        config: :class:`~uavcal_jax.vio.config.CostConfig` (static metadata; its
+            ``focal_px`` resolved).
     """
 
     frame_mask: jax.Array
@@ -192,7 +209,7 @@ class WindowProblem:
     observations: Observations
     imu: ImuFactors
     prior: Prior
-    config: CostConfig = CostConfig()
+    config: CostConfig
 
     @property
     def capacities(self) -> tuple[int, int, int]:
@@ -221,16 +238,9 @@ class CalibParams:
     R_BC: jax.Array
     t_BC: jax.Array
 
-    @classmethod
-    def euroc(cls, dtype=None) -> CalibParams:
-        """EuRoC's stereo rig and a zero offset."""
-        dtype = dtype or jnp.result_type(float)
-        T = np.stack([EUROC_CAM0_T_BS, EUROC_CAM1_T_BS])
-        return cls(jnp.zeros(6, dtype), jnp.asarray(T[:, :3, :3], dtype),
-                   jnp.asarray(T[:, :3, 3], dtype))
 
-
-for _cls in (Keyframes, WindowState, Landmarks, Observations, ImuFactors, Prior, CalibParams):
+for _cls in (Keyframes, WindowState, Landmarks, Observations, ImuFactors, ImuSamples, Prior,
+             CalibParams):
     _register(_cls)
 _register(WindowProblem, meta=("config",))
 

@@ -14,13 +14,13 @@ import jax.numpy as jnp
 
 from uavcal_jax.imu import ImuNoise, Preintegrated, preintegrate
 from uavcal_jax.vio.config import CostConfig, SolverConfig
-from uavcal_jax.vio.marginalize import ImuSamples
 from uavcal_jax.vio.residuals import factor_residuals, landmark_mask
 from uavcal_jax.vio.solver import SolveInfo, structured_solve
 from uavcal_jax.vio.window import (
     FRAME_DIM,
     CalibParams,
     ImuFactors,
+    ImuSamples,
     Keyframes,
     Landmarks,
     Observations,

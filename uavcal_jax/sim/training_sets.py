@@ -1,9 +1,10 @@
-"""The calibrator's simulated data sets, rendered once into a cache and reused by every sweep.
+"""Simulated training sets (the calibrator's), rendered once into a cache and reused by every
+sweep.
 
 Three families (:data:`FAMILIES`):
 
 - ``"euroc"``: one sequence per EuRoC ground-truth trajectory in
-  ``../shared/data/trajectories/euroc/`` (11, real indoor MAV dynamics), over its whole length;
+  ``<data_root>/trajectories/euroc/`` (11, real indoor MAV dynamics), over its whole length;
 - ``"uzh_fpv"``: the same for the 11 UZH-FPV trajectories (aggressive racing-drone flight);
 - ``"procedural"``: seeded procedural flights of the simulator (no data needed).
 
@@ -13,6 +14,9 @@ configuration, written atomically). Frames are rendered at :data:`RENDER_RESOLUT
 frames (``WindowConfig.size``, ``INTER_AREA``); only cam0 is read. The IMU is EuRoC's
 ADIS16448 model with its turn-on biases, so the "clean" training IMU is as clean as a real
 one: the injected offset comes on top of an unknown bias, as in the paper.
+
+``data_root`` (the folder holding ``trajectories/``) is the callers': the experiments pass the
+repository's ``../shared/data``.
 """
 
 from __future__ import annotations
@@ -31,13 +35,11 @@ __all__ = ["FAMILIES", "RENDER_RESOLUTION", "SimSetConfig", "sequence_configs",
 FAMILIES = ("euroc", "uzh_fpv", "procedural")
 #: Render size of the cached sets (width, height): EuRoC's 752x480 halved.
 RENDER_RESOLUTION = (376, 240)
-#: ``../shared/data`` beside the checkout.
-SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 
 
-def trajectory_dir(family: str) -> Path:
-    """Folder of a family's TUM trajectories under ``../shared/data/trajectories``."""
-    return SHARED_DATA / "trajectories" / family
+def trajectory_dir(data_root: str | Path, family: str) -> Path:
+    """Folder of a family's TUM trajectories, ``data_root/trajectories/<family>``."""
+    return Path(data_root) / "trajectories" / family
 
 
 @dataclass(frozen=True)
@@ -68,8 +70,15 @@ class SimSetConfig:
             raise ValueError(f"family must be one of {FAMILIES}, got {self.family!r}")
 
 
-def sequence_configs(config: SimSetConfig) -> list[tuple[str, SimConfig]]:
-    """``(name, SimConfig)`` of every sequence of the set."""
+def sequence_configs(config: SimSetConfig, data_root: str | Path | None = None
+                     ) -> list[tuple[str, SimConfig]]:
+    """``(name, SimConfig)`` of every sequence of the set; ``data_root`` holds the
+    trajectory families' files (:func:`trajectory_dir`; procedural flights need none).
+
+    Raises:
+        ValueError: a trajectory family without ``data_root``, or unknown ``sequences``.
+        FileNotFoundError: no trajectory files under ``data_root``.
+    """
     base = dict(resolution=config.resolution, color=config.color, depth=False, targets=False)
     out: list[tuple[str, SimConfig]] = []
     if config.family == "procedural":
@@ -78,10 +87,13 @@ def sequence_configs(config: SimSetConfig) -> list[tuple[str, SimConfig]]:
             out.append((f"proc_{i:02d}", SimConfig(duration=duration, seed=config.seed + i,
                                                    **base)))
     else:
-        files = sorted(trajectory_dir(config.family).glob("*.txt"))
+        if data_root is None:
+            raise ValueError(f"the {config.family} set needs data_root (the folder holding "
+                             "trajectories/)")
+        folder = trajectory_dir(data_root, config.family)
+        files = sorted(folder.glob("*.txt"))
         if not files:
-            raise FileNotFoundError(f"no trajectories in {trajectory_dir(config.family)} "
-                                    "(needs ../shared/data beside the checkout)")
+            raise FileNotFoundError(f"no trajectories in {folder}")
         for i, path in enumerate(files):
             # the last 0.1 s stays inside the file, whatever its rate
             span = round(trajectory_span(path) - 0.1, 1)
@@ -97,10 +109,11 @@ def sequence_configs(config: SimSetConfig) -> list[tuple[str, SimConfig]]:
     return out
 
 
-def simulated_set(config: SimSetConfig, cache: str | Path, *, progress: bool = True
-                  ) -> list[Path]:
-    """The set's sequence folders under ``cache/<family>/``, rendering the missing ones."""
-    items: Sequence[tuple[str, SimConfig]] = sequence_configs(config)
+def simulated_set(config: SimSetConfig, cache: str | Path, *,
+                  data_root: str | Path | None = None, progress: bool = True) -> list[Path]:
+    """The set's sequence folders under ``cache/<family>/``, rendering the missing ones
+    (``data_root``: :func:`sequence_configs`)."""
+    items: Sequence[tuple[str, SimConfig]] = sequence_configs(config, data_root)
     root = Path(cache) / config.family
     return [cached_simulation(cfg, root, name, progress=progress)
             for name, cfg in progress_bar(items, desc=f"{config.family} set",

@@ -1,10 +1,13 @@
-"""Detection records and data sets, and the bookkeeping every label reader shares.
+"""Labelled images (detection records and data sets), and the bookkeeping every label reader
+of :mod:`uavcal_jax.data.detection_labels` shares.
 
 A :class:`DetectionDataset` is a tuple of :class:`DetectionRecord` (one per image: its path,
 its boxes as ``x_min, y_min, x_max, y_max`` in pixels of the *original* image, class ids, and
 a ``difficult`` flag) plus the class names (class id ``i`` is ``class_names[i]``).
 :class:`Problems` collects what a reader skipped or repaired and emits one
 :class:`~uavcal_jax.errors.DataRepairWarning`; :func:`finish_boxes` clips boxes to their image.
+:func:`list_images` and :func:`collect_images` find image files; :data:`IMREAD_FLAGS` is how
+every image is decoded.
 """
 
 from __future__ import annotations
@@ -135,7 +138,7 @@ class Problems:
 
 
 #: The modules whose frames a warning skips, to point at the caller of a reader.
-_READER_MODULES = ("uavcal_jax.detect.records", "uavcal_jax.detect.readers",
+_READER_MODULES = ("uavcal_jax.data.detection_records", "uavcal_jax.data.detection_labels",
                    "uavcal_jax.detect.datasets")
 
 
@@ -209,20 +212,6 @@ def require_dir(root: str | Path) -> Path:
 
 def read_class_list(path: Path) -> tuple[str, ...]:
     return tuple(line.strip() for line in path.read_text().splitlines() if line.strip())
-
-
-def remap_classes(ds: DetectionDataset, class_names) -> DetectionDataset:
-    """Express ``ds`` in another class list (by name); boxes of other classes are dropped."""
-    class_names = tuple(class_names)
-    index = {n: i for i, n in enumerate(class_names)}
-    lut = np.array([index.get(n, -1) for n in ds.class_names] + [-1], dtype=np.int32)
-    records = []
-    for r in ds.records:
-        new = lut[r.classes] if len(r.classes) else r.classes
-        keep = new >= 0
-        records.append(DetectionRecord(r.image_path, r.boxes[keep], new[keep].astype(np.int32),
-                                       r.difficult[keep], r.width, r.height, r.image_id))
-    return DetectionDataset(tuple(records), class_names, ds.root, ds.format)
 
 
 def collect_images(items) -> list[Path]:

@@ -1,6 +1,7 @@
-"""Detection label readers: Pascal VOC XML, YOLO txt, COCO json and the simulator's targets.
+"""Detection label formats: Pascal VOC XML, YOLO txt, COCO json and the simulator's targets.
 
-Every reader returns a :class:`~uavcal_jax.detect.records.DetectionDataset`.
+Every reader returns a :class:`~uavcal_jax.data.detection_records.DetectionDataset`;
+:func:`detect_format` tells the formats (:data:`LABEL_FORMATS`) apart by the path.
 
 Bad input policy (one :class:`~uavcal_jax.errors.DataRepairWarning` per read, listing what
 was done):
@@ -35,9 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uavcal_jax.data import read_euroc
-from uavcal_jax.data.euroc_format import DATA_CSV, MAV0, TARGET_FOLDER
-from uavcal_jax.detect.records import (
+from uavcal_jax.data.detection_records import (
     DetectionDataset,
     DetectionRecord,
     Problems,
@@ -47,7 +46,13 @@ from uavcal_jax.detect.records import (
     read_class_list,
     require_dir,
 )
+from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.data.euroc_format import DATA_CSV, MAV0, TARGET_FOLDER
 from uavcal_jax.errors import DataError
+
+#: The label formats :func:`detect_format` tells apart: Pascal VOC, YOLO, COCO and the
+#: simulator's ``target0``.
+LABEL_FORMATS = ("voc", "yolo", "coco", "sim")
 
 # ----------------------------------------------------------------------------------- VOC
 
@@ -343,7 +348,7 @@ def read_sim_targets(root: str | Path, camera: str = "cam0", *, stride: int = 1,
                      check_images: bool = True) -> DetectionDataset:
     """The simulator's rendered frames with their target boxes (``mav0/target0``).
 
-    The recording is read with :func:`uavcal_jax.data.read_euroc`, so the EuRoC reader's
+    The recording is read with :func:`~uavcal_jax.data.euroc.read_euroc`, so the EuRoC reader's
     bad-input rules apply to the frame list (malformed or out-of-order ``data.csv`` rows,
     listed frames whose image is missing) and to the target labels. Every ``stride``-th
     frame of ``camera`` is a record; frames without targets are negatives.
@@ -372,3 +377,28 @@ def read_sim_targets(root: str | Path, camera: str = "cam0", *, stride: int = 1,
         records.append(DetectionRecord(path, b, c, d, size[0], size[1], name))
     problems.warn()
     return DetectionDataset(tuple(records), sequence.targets.class_names, mav0, "sim")
+
+
+# ------------------------------------------------------------------------------ format
+
+
+def detect_format(path: str | Path) -> str:
+    """Guess the label format of a data set path: one of :data:`LABEL_FORMATS`."""
+    path = require_dir(path)
+    if path.is_file():
+        if path.suffix.lower() == ".json":
+            return "coco"
+        raise DataError("not a data set folder or COCO json", path)
+    if (path / "Annotations").is_dir() and (path / "JPEGImages").is_dir():
+        return "voc"
+    if (path / MAV0 / TARGET_FOLDER).is_dir() or (path / TARGET_FOLDER).is_dir():
+        return "sim"
+    if find_coco_json(path) is not None:
+        return "coco"
+    if (path / "classes.txt").is_file() or any(path.glob("*.txt")) or (path / "labels").is_dir():
+        return "yolo"
+    if list_images(path):
+        return "yolo"  # images only: all negatives
+    raise DataError("cannot tell the data set format (expected VOC Annotations/+JPEGImages/, "
+                    "YOLO images + .txt labels, a COCO json, or a simulator mav0/target0)",
+                    path)
