@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from uavcal_jax.config import from_dict, to_dict
 from uavcal_jax.detect.config import DetectorConfig, PredictConfig
 from uavcal_jax.detect.counting import classifier_counts, count_macs, detector_counts
 from uavcal_jax.detect.layers import (
@@ -154,7 +155,7 @@ def test_predict_fn_fixed_shapes(small):
 
 def test_config_roundtrip_and_validation():
     cfg = DetectorConfig(model="yznet-yolo", num_classes=5, img_size=(320, 416))
-    assert DetectorConfig.from_dict(cfg.to_dict()) == cfg
+    assert from_dict(DetectorConfig, to_dict(cfg)) == cfg
     with pytest.raises(ValueError):
         DetectorConfig(img_size=(100, 640))
     with pytest.raises(ValueError):

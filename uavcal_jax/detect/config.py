@@ -16,7 +16,6 @@ can be passed instead (``anchors=...``).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field, replace
 
 from uavcal_jax.detect.augment import AugmentConfig
@@ -150,27 +149,6 @@ class DetectorConfig:
     def replace(self, **changes) -> DetectorConfig:
         return replace(self, **changes)
 
-    def to_dict(self) -> dict:
-        """A JSON-ready dict (tuples become lists) that :meth:`from_dict` reads back."""
-        out = {}
-        for name in self.__dataclass_fields__:
-            out[name] = _listify(getattr(self, name))
-        return out
-
-    @classmethod
-    def from_dict(cls, d: dict) -> DetectorConfig:
-        kw = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        for key in ("img_size", "strides", "balance", "neck_widths"):
-            if kw.get(key) is not None:
-                kw[key] = tuple(kw[key])
-        return cls(**kw)
-
-
-def _listify(x):
-    if isinstance(x, tuple | list):
-        return [_listify(v) for v in x]
-    return x
-
 
 # ----------------------------------------------------------------------------- prediction
 
@@ -288,13 +266,6 @@ class TrainConfig:
                     lr_schedule="linear", lrf=0.01)
         return cls(**{**base, **changes})
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> TrainConfig:
-        kw = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        return cls(**kw)
 
 
 # ----------------------------------------------------------------------------- the root
