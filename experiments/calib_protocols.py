@@ -73,7 +73,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import jax
 import numpy as np
 from _calib_common import (  # the script's folder is first on sys.path
     ROOT,
@@ -89,19 +88,15 @@ from _calib_common import (  # the script's folder is first on sys.path
 )
 
 from uavcal_jax.argtypes import positive_int, print_json
-from uavcal_jax.calib.baselines import (
-    LeastSquaresConfig,
-    ground_truth_bias_windows,
-    least_squares_windows,
-)
 from uavcal_jax.calib.config import PROTOCOLS
 from uavcal_jax.calib.data import count_windows, load_windows
 from uavcal_jax.calib.loop import evaluate, mean_offset_baseline, validation_draws
-from uavcal_jax.calib.metrics import calibration_metrics, seed_summary
-from uavcal_jax.calib.predict import channel_names, expand_to_six, predict_sequence
+from uavcal_jax.calib.metrics import seed_summary
+from uavcal_jax.calib.predict import channel_names, predict_sequence
 from uavcal_jax.calib.schedule import Budget, Job, evaluate_best, train_jobs
 from uavcal_jax.calib.trials import (
     TRIAL_FORMAT,
+    least_squares_trial,
     mean_std_of,
     spread,
     trial_dir,
@@ -109,7 +104,6 @@ from uavcal_jax.calib.trials import (
     write_trial_data,
 )
 from uavcal_jax.data.euroc import read_euroc
-from uavcal_jax.errors import DataError
 from uavcal_jax.plots import plot_offsets
 from uavcal_jax.xla_cache import enable_compilation_cache
 
@@ -142,52 +136,12 @@ METHODS = {
     "least_squares": "least squares vs ground-truth states",
     "least_squares_oracle": "least squares minus true IMU bias (oracle)",
 }
-#: Least squares on the injected streams: the paper protocol's gyro offsets reach ~1 rad/s,
-#: past the real bias sizes for which 3 Gauss-Newton iterations converge; 0.1 s keyframes
-#: are the fallback when a 0.25 s interval rotates past the preintegration's range.
-#: One window per solve (``chunk=1``): every trial's windows then share one compiled solve,
-#: where a chunk of ``min(32, windows)`` compiles anew for each held-out window count.
-LS_CONFIGS = (LeastSquaresConfig(iterations=6, chunk=1),
-              LeastSquaresConfig(interval=0.1, iterations=6, chunk=1))
 #: Trials per experiment in budget mode (spread over the set); --paper runs every one.
 BUDGET_TRIALS = 3
 #: Seconds set aside per Figure 2 plot (predict with two models, draw).
 PLOT_RESERVE_S = 15.0
 #: The :func:`~uavcal_jax.calib.metrics.seed_summary` numbers averaged over trials.
 HEADLINE = ("sign_f1", "offset_rmse", "gyro_rmse", "accel_rmse")
-
-
-def _plain(tree):
-    return jax.tree.map(lambda x: np.asarray(x).tolist(), tree)
-
-
-def least_squares_trial(val, offsets: np.ndarray, sensor: str, ground_truth) -> dict:
-    """Least squares on every validation window once per offset of ``offsets (K, C)``
-    (injected into every window): metrics pooled over the K passes, raw and minus the true
-    bias, and the per-window estimates of the first offset (Figure 2); ``ground_truth(source)``
-    reads a sequence's."""
-    pick = (slice(None) if offsets.shape[1] == 6 else
-            slice(0, 3) if sensor == "gyro" else slice(3, 6))
-    subs = [(p.windows.subset(p.indices), ground_truth(p.source)) for p in val]
-    bias = np.concatenate([ground_truth_bias_windows(sub, gt) for sub, gt in subs])[:, pick]
-    last_err = None
-    for cfg in LS_CONFIGS:
-        try:
-            raw = np.stack([np.concatenate([
-                np.asarray(least_squares_windows(
-                    sub, gt, np.broadcast_to(expand_to_six(o, sensor), (len(sub), 6)), cfg),
-                    np.float64) for sub, gt in subs])[:, pick] for o in offsets])
-            break
-        except DataError as err:
-            last_err = err
-    else:
-        return {"error": str(last_err)}
-    oracle = raw - bias  # (K, n, C)
-    target = np.broadcast_to(offsets[:, None], raw.shape).reshape(-1, raw.shape[-1])
-    return {"interval_s": cfg.interval, "per_window": raw[0], "oracle_per_window": oracle[0],
-            "metrics": _plain(calibration_metrics(raw.reshape(target.shape), target)),
-            "oracle_metrics": _plain(calibration_metrics(oracle.reshape(target.shape),
-                                                         target))}
 
 
 #: Figure 2's line of each method (:func:`uavcal_jax.plots.plot_offsets` draws it).
