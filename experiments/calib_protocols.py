@@ -15,6 +15,8 @@ paper's convention) and drawn by the protocol (:func:`uavcal_jax.calib.loop.eval
 
 - ``transformer``: the video + IMU calibrator, its best epoch (``uavcal calib train``'s fit);
 - ``imu_only``: the same without the video reducer (``model.use_video=false``);
+- ``closed_form``: the transformer whose head learns a correction to the window mean below
+  (``model.closed_form=window_mean``; its untrained prediction is that baseline);
 - ``mean_offset``: the mean of the protocol's training offsets, for every window;
 - ``window_mean``: each window's mean IMU sample minus the training set's mean (no learning;
   right where the window's motion averages out and gravity's projection matches the training
@@ -127,10 +129,12 @@ EXPERIMENTS = {
                              "MH_01_easy (sim), k-fold over windows"),
 }
 #: Trained variants: their extra settings.
-VARIANTS = {"transformer": (), "imu_only": ("model.use_video=false",)}
+VARIANTS = {"transformer": (), "imu_only": ("model.use_video=false",),
+            "closed_form": ("model.closed_form=window_mean",)}
 METHODS = {
     "transformer": "transformer (video + IMU)",
     "imu_only": "transformer, IMU only",
+    "closed_form": "transformer on the window mean (closed-form head)",
     "mean_offset": "mean-offset baseline",
     "window_mean": "window-mean baseline",
     "least_squares": "least squares vs ground-truth states",
@@ -147,6 +151,7 @@ HEADLINE = ("sign_f1", "offset_rmse", "gyro_rmse", "accel_rmse")
 #: Figure 2's line of each method (:func:`uavcal_jax.plots.plot_offsets` draws it).
 FIGURE2_STYLES = {"transformer": dict(color="C0", marker=".", ls="-", lw=1, ms=3),
                   "imu_only": dict(color="C1", marker=".", ls="-", lw=1, ms=3),
+                  "closed_form": dict(color="C3", marker=".", ls="-", lw=1, ms=3),
                   "least_squares": dict(color="C2", ls="-", lw=1, ms=3),
                   "least_squares_oracle": dict(color="C2", ls=":", lw=1, ms=3),
                   "mean_offset": dict(color="0.5", ls="-.", lw=1, ms=3)}
@@ -175,6 +180,8 @@ def _arguments() -> tuple[argparse.Namespace, list[str], list[str], int | None]:
                          f"k-fold: folds used) [default: {BUDGET_TRIALS}, with --paper all]")
     ap.add_argument("--folds", type=positive_int, default=None,
                     help="k of mh01_kfold [default: LoopConfig.folds]")
+    ap.add_argument("--variants", default=",".join(VARIANTS),
+                    help="comma-separated trained variants of %(default)s")
     ap.add_argument("--seed", type=int, default=0, help="train.seed of every trial")
     ap.add_argument("--trial-seeds", action="store_true",
                     help="trial i trains with seed + i (its own validation offsets; one "
@@ -185,10 +192,12 @@ def _arguments() -> tuple[argparse.Namespace, list[str], list[str], int | None]:
     args = ap.parse_args()
     experiments = [e for e in args.experiments.split(",") if e]
     protocols = [p for p in args.protocols.split(",") if p]
+    args.variants = [v for v in args.variants.split(",") if v]
     bad = [e for e in experiments if e not in EXPERIMENTS] + [
-        p for p in protocols if p not in PROTOCOLS]
+        p for p in protocols if p not in PROTOCOLS] + [
+        v for v in args.variants if v not in VARIANTS]
     if bad:
-        ap.error(f"unknown experiments/protocols: {bad}")
+        ap.error(f"unknown experiments/protocols/variants: {bad}")
     if args.trials is None:
         n_trials = None if args.paper else BUDGET_TRIALS
     else:
@@ -236,7 +245,8 @@ def _plan(args, exp_parts: dict, seq_name: dict, protocols: list[str], extra: li
                 trials[key] = {"held_out": [seq_name[p.source] for p in val],
                                "train_windows": count_windows(train),
                                "val_windows": count_windows(val), "val": val, "jobs": {}}
-                for variant, settings in VARIANTS.items():
+                for variant in args.variants:
+                    settings = VARIANTS[variant]
                     seed = args.seed + i if args.trial_seeds else args.seed
                     calib, _, _ = resolve(args, [*extra, f"train.seed={seed}", *settings],
                                           protocol=protocol, validation=loop.validation,
@@ -292,7 +302,7 @@ def _evaluate(args, trials: dict, channels) -> list[str]:
                                 "epochs": job.epochs, "best_epoch": job.summary["best_epoch"],
                                 "stopped_early": job.stopped, "run": str(job.run_dir),
                                 "best": job.summary["best"]}
-            if variant == "transformer":  # the baselines depend on the data only
+            if "mean_offset" not in methods:  # the baselines depend on the data only
                 methods["mean_offset"] = seed_summary([ev["baseline_mean_offset"]], channels)
                 methods["window_mean"] = seed_summary([ev["baseline_window_mean"]], channels)
         ls = t["least_squares"]
@@ -435,7 +445,8 @@ def _figure2(args, key, t: dict, states: dict, channels) -> Path:
     if "error" not in ls:
         lines["least_squares"] = ls["per_window"]
         lines["least_squares_oracle"] = ls["oracle_per_window"]
-    lines["mean_offset"] = np.broadcast_to(t["mean_offset_value"], lines["transformer"].shape)
+    lines["mean_offset"] = np.broadcast_to(t["mean_offset_value"],
+                                           next(iter(lines.values())).shape)
     t["figure2_check"] = check
     title = (f"{EXPERIMENTS[name].label}, {protocol} protocol, trial {i}: held out "
              f"{', '.join(t['held_out'])}; offset 1 of {len(t['offsets'])}")

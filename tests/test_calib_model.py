@@ -110,6 +110,21 @@ def test_an_untrained_standardized_model_predicts_the_mean_offset(sequence):
     np.testing.assert_array_equal(np.asarray(out), np.broadcast_to(want, out.shape))
 
 
+def test_an_untrained_window_mean_head_predicts_the_window_mean(sequence):
+    """``closed_form=window_mean``: the zero-initialised correction leaves each window's mean
+    real IMU sample minus the training mean (padded slots left out)."""
+    frames, index, mask, imu = sequence
+    config = apply_overrides(CONFIG, ["model.closed_form=window_mean"])
+    state = create_train_state(config, jax.random.key(3),
+                               {"frames": frames[index[:1]], "imu": imu[:1], "mask": mask[:1]})
+    out = Calibrator(config.model).apply(state.variables(), _gather(frames, index), imu, mask)
+    means = np.stack([imu[b][mask[b]].mean(axis=0) for b in range(len(imu))])
+    want = means - np.asarray(state.variables()[NORMALIZATION]["imu_mean"])
+    np.testing.assert_allclose(np.asarray(out), want, atol=1e-5)
+    with pytest.raises(ValueError, match="standardize"):
+        apply_overrides(CONFIG, ["model.closed_form=window_mean", "model.standardize=false"])
+
+
 def test_padded_frames_change_nothing(gray, sequence):
     _, variables, apply = gray
     frames, index, mask, imu = sequence

@@ -165,3 +165,15 @@ def test_early_stopping_after_patience_epochs_without_improvement():
         history.append(stop)
     assert history == [False, False, False, False, True, False]
     assert es.best == 1.0 and es.best_epoch == 5
+
+
+def test_total_label_adds_the_sensor_bias_to_the_offset(single):
+    """Under the ``total`` label the batch's ``bias`` joins the injected offset in the target:
+    a bias equal to the prediction minus the offset makes the offset error vanish."""
+    state, _ = single
+    offset = np.tile(np.float32([0.02, -0.01, 0.03, 0.1, -0.2, 0.05]), (4, 1))
+    injected = eval_step(state, {**BATCH, "offset": offset})
+    bias = np.asarray(injected["pred"]) - offset
+    total = eval_step(state, {**BATCH, "offset": offset, "bias": bias})
+    np.testing.assert_array_equal(np.asarray(total["pred"]), np.asarray(injected["pred"]))
+    assert float(injected["offset"]) > 1e-3 and float(total["offset"]) < 1e-9

@@ -198,6 +198,20 @@ def test_real_micro_windows(euroc_micro):
     dt = np.abs(ws.frame_t_ns[:, None] - seq.imu.t_ns[None, :])
     np.testing.assert_array_equal(ws.imu_index, np.argmin(dt, axis=1))
     assert dt.min(axis=1).max() <= 2_500_000  # 200 Hz IMU: within half a period
+    # the sensor's own bias over each window, from the ground truth's b_w / b_a columns
+    gt = seq.ground_truth
+    inside = (gt.t_ns >= ws.start_ns[2]) & (gt.t_ns < ws.start_ns[2] + 2_000_000_000)
+    want = np.concatenate([gt.bias_gyro[inside], gt.bias_accel[inside]], axis=1).mean(axis=0)
+    np.testing.assert_allclose(ws.sensor_bias[2], want, rtol=1e-12)
+    # V1_01's real gyro bias, steady over the slice
+    np.testing.assert_allclose(ws.sensor_bias[:, :3], [[-0.0022, 0.0215, 0.0770]] * 6, atol=5e-4)
+    np.testing.assert_array_equal(ws.batch([1, 4])["sensor_bias"], ws.sensor_bias[[1, 4]])
+
+
+def test_no_bias_columns_no_sensor_bias():
+    seq, _ = make_sequence(12.0)
+    ws = make_windows(seq, WindowConfig(duration=10.0, stride=1.0, size=(32, 24)))
+    assert ws.sensor_bias is None and "sensor_bias" not in ws.batch([0])
 
 
 def test_subset_picks_windows_and_shares_frames():

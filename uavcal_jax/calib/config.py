@@ -27,6 +27,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 
+from uavcal_jax.data.true_offset import LABELS
 from uavcal_jax.data.windows import WindowConfig
 
 __all__ = [
@@ -52,6 +53,8 @@ __all__ = [
 ACTIVATIONS = ("relu", "gelu")
 FRAME_TOKENS = ("learned", "first_patch")
 FRAME_ENCODER_DTYPES = ("float32", "bfloat16")
+#: Closed-form estimates the head can start from (``model.closed_form``).
+CLOSED_FORMS = ("none", "window_mean")
 SIGN_TERMS = ("sign", "tanh")
 LOSS_UNITS = ("si", "standardized")
 #: Offset-injection protocols (``injection.protocol``).
@@ -112,6 +115,13 @@ class ModelConfig:
             kernel's. Twice the matrix throughput on CPUs with bfloat16 dot products
             (AVX512-BF16, AMX) and on accelerators. The parameters stay float32, so a
             checkpoint loads under either value (``uavcal calib predict --frame-dtype``).
+        closed_form: the closed-form estimate the head's output is added to (a learned
+            correction, zero-initialised, so an untrained model predicts the closed form):
+            ``"none"`` (the paper: the head alone; standardised, it starts at the mean
+            offset) or ``"window_mean"`` (each window's mean IMU sample minus the training
+            set's mean, the no-learning estimate that the paper protocol's offsets, drawn
+            around the IMU's mean, make strong; needs ``standardize``, whose statistics it
+            uses).
     """
 
     d_model: int = 256
@@ -131,6 +141,7 @@ class ModelConfig:
     layer_norm_eps: float = 1e-5
     standardize: bool = True
     frame_encoder_dtype: str = "float32"
+    closed_form: str = "none"
 
     def __post_init__(self) -> None:
         if self.d_model <= 0 or self.heads <= 0 or self.d_model % self.heads:
@@ -149,6 +160,12 @@ class ModelConfig:
         if self.frame_token not in FRAME_TOKENS:
             raise ValueError(f"frame_token must be one of {FRAME_TOKENS}, "
                              f"got {self.frame_token!r}")
+        if self.closed_form not in CLOSED_FORMS:
+            raise ValueError(f"closed_form must be one of {CLOSED_FORMS}, "
+                             f"got {self.closed_form!r}")
+        if self.closed_form != "none" and not self.standardize:
+            raise ValueError(f"closed_form={self.closed_form!r} needs standardize (the "
+                             "training statistics it subtracts)")
         if self.frame_encoder_dtype not in FRAME_ENCODER_DTYPES:
             raise ValueError(f"frame_encoder_dtype must be one of {FRAME_ENCODER_DTYPES}, "
                              f"got {self.frame_encoder_dtype!r}")
@@ -207,6 +224,11 @@ class InjectionConfig:
             accelerometer biases in norm).
         single_sensor: physical protocol with a 3-channel IMU: which range applies
             (``"gyro"`` or ``"accel"``).
+        label: what the model learns to predict (:data:`uavcal_jax.data.true_offset.LABELS`):
+            ``"injected"``, the drawn offset alone (the paper's label), or ``"total"``, the
+            offset plus the sensor's own bias over the window from the ground truth's bias
+            columns (the constant a user subtracts). ``None``: the protocol's default,
+            ``total`` under ``physical`` and ``injected`` otherwise (:attr:`target`).
     """
 
     protocol: str = "paper"
@@ -214,6 +236,14 @@ class InjectionConfig:
     gyro_range: float = 0.08
     accel_range: float = 0.16
     single_sensor: str = "gyro"
+    label: str | None = None
+
+    @property
+    def target(self) -> str:
+        """The label in force: :attr:`label`, or the protocol's default when it is ``None``."""
+        if self.label is not None:
+            return self.label
+        return "total" if self.protocol == "physical" else "injected"
 
     def __post_init__(self) -> None:
         if self.single_sensor not in ("gyro", "accel"):
@@ -221,6 +251,8 @@ class InjectionConfig:
                              f"got {self.single_sensor!r}")
         if self.protocol not in PROTOCOLS:
             raise ValueError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
+        if self.label is not None and self.label not in LABELS:
+            raise ValueError(f"label must be one of {LABELS} or none, got {self.label!r}")
         if self.noise_multiplier <= 0 or self.gyro_range < 0 or self.accel_range < 0:
             raise ValueError("noise_multiplier must be positive and the ranges non-negative")
 

@@ -36,8 +36,8 @@ from uavcal_jax.data.windows import WindowConfig, WindowSet, make_windows
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 __all__ = ["Windows", "as_windows", "count_windows", "find_sequences", "gather", "kfold_windows",
-           "leave_one_out", "load_windows", "mask_black_frames", "split_windows",
-           "training_statistics"]
+           "label_channels", "leave_one_out", "load_windows", "mask_black_frames",
+           "mean_sensor_bias", "split_windows", "training_statistics"]
 
 
 class Windows(NamedTuple):
@@ -114,10 +114,12 @@ def _locate(parts: list[Windows]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def gather(parts: list[Windows], flat: np.ndarray, model: ModelConfig, sensor: str,
-           batch_size: int | None = None) -> dict:
+           batch_size: int | None = None, label: str = "injected") -> dict:
     """Model inputs of windows ``flat`` (indices into the concatenation of ``parts``), with
     ``weight (B,)``: 1 for real windows, 0 for the copies of the first one that pad the batch
-    to ``batch_size``."""
+    to ``batch_size``. Under the ``total`` label (``InjectionConfig.target``) also ``bias
+    (B, C)`` float32: the sensor's own bias over each window, the label's share besides the
+    injected offset (:func:`label_channels` of ``WindowSet.sensor_bias``)."""
     src, loc = _locate(parts)
     flat = np.asarray(flat, np.int64)
     n = flat.size
@@ -127,7 +129,35 @@ def gather(parts: list[Windows], flat: np.ndarray, model: ModelConfig, sensor: s
     wb = {k: np.concatenate([r[k] for r in rows]) for k in keys}
     out = model_batch(wb, model, sensor)
     out["weight"] = (np.arange(pad.size) < n).astype(np.float32)
+    if label == "total":
+        _require_bias(parts)
+        bias = np.concatenate([r["sensor_bias"] for r in rows])
+        out["bias"] = label_channels(bias, model.imu_channels, sensor).astype(np.float32)
     return out
+
+
+def label_channels(six: np.ndarray, channels: int, sensor: str) -> np.ndarray:
+    """The model's channels of ``(..., 6)`` values (gyro then accel): all six, or the three
+    of ``sensor`` for a 3-channel model."""
+    if channels == 6:
+        return six
+    return six[..., :3] if sensor == "gyro" else six[..., 3:]
+
+
+def _require_bias(parts: list[Windows]) -> None:
+    for p in parts:
+        if p.windows.sensor_bias is None:
+            raise DataError("the total label needs the recording's ground-truth bias columns "
+                            "(state_groundtruth_estimate0 with b_w/b_a); this one has none: "
+                            "set injection.label=injected", p.source)
+
+
+def mean_sensor_bias(parts: list[Windows], channels: int, sensor: str) -> np.ndarray:
+    """``(C,)`` the mean sensor bias over the chosen windows of ``parts`` (the ``total``
+    label's share that a no-learning estimate can take from the training set)."""
+    _require_bias(parts)
+    bias = np.concatenate([p.windows.sensor_bias[p.indices] for p in parts])
+    return label_channels(bias.mean(axis=0), channels, sensor)
 
 
 def training_statistics(parts: list[Windows], channels: int, sensor: str) -> ImuStats:

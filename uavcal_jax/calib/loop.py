@@ -43,7 +43,13 @@ from uavcal_jax.calib.config import (
     LoopConfig,
     run_layout,
 )
-from uavcal_jax.calib.data import Windows, as_windows, gather, training_statistics
+from uavcal_jax.calib.data import (
+    Windows,
+    as_windows,
+    gather,
+    mean_sensor_bias,
+    training_statistics,
+)
 from uavcal_jax.calib.inject import ImuStats, training_offsets, validation_offsets
 from uavcal_jax.calib.metrics import calibration_metrics, metrics_from_sums
 from uavcal_jax.calib.train import (
@@ -127,7 +133,8 @@ def mean_offset_baseline(state: CalibState, seeds: int) -> jax.Array:
 
 def _init_state(config: CalibConfig, parts: list[Windows], stats: ImuStats, seeds: int,
                 abstract: bool = False):
-    sample = gather(parts, np.arange(1), config.model, config.injection.single_sensor)
+    sample = gather(parts, np.arange(1), config.model, config.injection.single_sensor,
+                    label=config.injection.target)
     keys = jax.random.split(jax.random.fold_in(_root(config), _INIT), seeds)
     if not abstract:
         return (create_train_state(config, keys[0], sample, stats) if seeds == 1 else
@@ -156,7 +163,8 @@ def validation_draws(state: CalibState, seeds: int, draws: int) -> np.ndarray:
 
 
 def evaluate(state: CalibState, parts: list[Windows], seeds: int, *,
-             offsets: np.ndarray | None = None, draws: int = 1, show: bool = False) -> dict:
+             offsets: np.ndarray | None = None, draws: int = 1, show: bool = False,
+             label_bias: np.ndarray | None = None) -> dict:
     """Validation of ``state`` on ``parts``, once per offset: each pass injects one offset into
     every window (the paper's one offset per trial) and the metrics pool the passes.
 
@@ -165,6 +173,9 @@ def evaluate(state: CalibState, parts: list[Windows], seeds: int, *,
             :func:`validation_draws`.
         draws: passes when ``offsets`` is not given (1: the paper; more average the trial's
             luck of the draw out of its figures).
+        label_bias: ``(C,)`` under the ``total`` label, the training windows' mean sensor
+            bias (:func:`uavcal_jax.calib.data.mean_sensor_bias`): the baselines add it, as a
+            no-learning estimate would; ``None``: they predict the offset part alone.
 
     Returns ``loss`` (per seed list when ``seeds > 1``), the eq. 19-23 metrics per seed
     (overall and per channel), those of two baselines on the same passes --
@@ -181,11 +192,14 @@ def evaluate(state: CalibState, parts: list[Windows], seeds: int, *,
     loss = np.zeros(seeds)
     sums: dict[str, np.ndarray] | None = None
     step = eval_step_seeds if seeds > 1 else eval_step
-    clean_means = []
+    clean_means, biases = [], []
     for b in progress_bar(range(0, n, bs), desc="validation", enabled=show, unit="batch"):
         flat = np.arange(b, min(b + bs, n))
-        batch = gather(parts, flat, config.model, config.injection.single_sensor, bs)
+        batch = gather(parts, flat, config.model, config.injection.single_sensor, bs,
+                       label=config.injection.target)
         clean_means.append(_window_means(batch)[:flat.size])
+        if "bias" in batch:
+            biases.append(batch["bias"][:flat.size])
         for o in offsets:
             batch["offset"] = np.broadcast_to(o, (bs, o.size)).copy()
             m = jax.device_get(step(state, batch))
@@ -196,9 +210,14 @@ def evaluate(state: CalibState, parts: list[Windows], seeds: int, *,
         sk = jax.tree.map(lambda x, k=k: x[k], sums) if seeds > 1 else sums
         per_seed.append(jax.tree.map(lambda x: np.asarray(x).tolist(), metrics_from_sums(sk)))
     true = np.repeat(offsets, n, axis=0)  # (K * n, C), pass by pass
-    mean_pred = np.broadcast_to(np.asarray(mean_offset_baseline(state, seeds)), true.shape)
+    mean_pred = np.asarray(mean_offset_baseline(state, seeds))
     window_pred = (np.concatenate(clean_means)[None] + offsets[:, None]
                    - np.asarray(s0.imu_stats.mean)).reshape(true.shape)
+    if biases:  # the total label: the sensor's own bias is part of the truth
+        true = true + np.tile(np.concatenate(biases), (len(offsets), 1))
+        known = np.zeros_like(mean_pred) if label_bias is None else np.asarray(label_bias)
+        mean_pred, window_pred = mean_pred + known, window_pred + known
+    mean_pred = np.broadcast_to(mean_pred, true.shape)
     baselines = {f"baseline_{name}": jax.tree.map(
         lambda x: np.asarray(x).tolist(),
         calibration_metrics(jnp.asarray(pred, jnp.float32), jnp.asarray(true)))
@@ -330,6 +349,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
     resolved = resolved_config(run, train)
     channels, sensor = config.model.imu_channels, config.injection.single_sensor
     stats = training_statistics(train, channels, sensor)
+    label_bias = (mean_sensor_bias(train, channels, sensor)
+                  if config.injection.target == "total" else None)
     root = _root(config)
     run_dir.mkdir(parents=True, exist_ok=True)
     ckpt = RunCheckpoints(run_dir, keep=loop.keep)
@@ -372,7 +393,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
                                enabled=progress, unit="step")
             for b in bar:
                 flat = order[b * bs:(b + 1) * bs]
-                batch = gather(train, flat, config.model, sensor, bs)
+                batch = gather(train, flat, config.model, sensor, bs,
+                               label=config.injection.target)
                 state, m = step_fn(state, batch, _step_keys(root, seeds, epoch * steps + b))
                 loss += np.reshape(jax.device_get(m["loss"]), -1) * flat.size
             loss /= n
@@ -383,7 +405,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
                                    "loss_per_seed": loss.tolist(),
                                    "train_time_s": time.perf_counter() - t0}
             if val:
-                v = evaluate(state, val, seeds, draws=loop.val_offsets)
+                v = evaluate(state, val, seeds, draws=loop.val_offsets,
+                             label_bias=label_bias)
                 vloss = np.reshape(v["loss"], -1)
                 row.update(val_loss=float(vloss.mean()), val_loss_per_seed=vloss.tolist(),
                            val_offset_rmse=float(np.mean([m["offset_rmse"]

@@ -25,10 +25,12 @@ rad/s, accel xyz in m/s^2, the IMU/body frame).
 The IMU-only variant (``use_video=False``) drops the VRB: the NPB reads ``T_i`` alone.
 
 With ``ModelConfig.standardize`` the IMU enters as ``(imu - imu_mean) / imu_std`` and the
-head's output ``y`` becomes ``offset_mean + offset_std * y``; the four ``(C,)`` constants are
+head's output ``y`` becomes ``base + offset_std * y``; the four ``(C,)`` constants are
 the ``"normalization"`` variable collection (:data:`NORMALIZATION`), which the caller supplies
 from the training statistics (:meth:`uavcal_jax.calib.train.CalibState.variables`), and the
-head starts at zero: an untrained model predicts the mean offset.
+head starts at zero: an untrained model predicts ``base``, the closed-form estimate of
+``ModelConfig.closed_form``: the mean offset ``offset_mean`` (the paper's head), or the
+window's mean IMU sample minus ``imu_mean``, so that training learns a correction to it.
 
 The frame encoder depends on one frame only, so :meth:`Calibrator.encode_frames` and
 :meth:`Calibrator.predict_from_frame_tokens` split the model at the frame tokens: over a
@@ -244,6 +246,7 @@ class Calibrator(nn.Module):
         model), IMU ``(B, n, C)`` and ``mask (B, n)``."""
         mask = jnp.asarray(mask, bool)
         imu = jnp.asarray(imu, F32)
+        raw = imu
         if self.config.standardize:
             norm = {k: v.value for k, v in self.normalization.items()}
             imu = (imu - norm["imu_mean"]) / norm["imu_std"]
@@ -255,8 +258,17 @@ class Calibrator(nn.Module):
                                                   deterministic=deterministic)
         out = self.noise_predictor(tokens, mask, deterministic=deterministic)
         if self.config.standardize:
-            out = norm["offset_mean"] + norm["offset_std"] * out
+            out = self._closed_form(raw, mask, norm) + norm["offset_std"] * out
         return out
+
+    def _closed_form(self, imu, mask, norm) -> jax.Array:
+        """``(B, C)`` the estimate the standardised head corrects (``closed_form``): the
+        mean offset, or each window's mean sample (real slots) minus the training mean."""
+        if self.config.closed_form == "window_mean":
+            w = mask.astype(F32)[..., None]
+            mean = jnp.sum(imu * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
+            return mean - norm["imu_mean"]
+        return jnp.broadcast_to(norm["offset_mean"], imu.shape[:-2] + imu.shape[-1:])
 
     def __call__(self, frames, imu, mask, *, deterministic: bool = True) -> jax.Array:
         frame_tokens = None

@@ -3,7 +3,8 @@
 A batch is a dict of model inputs (:func:`uavcal_jax.calib.batch.model_batch`): ``frames``
 ``(B, T, h, w)`` / ``(B, T, 3, h, w)`` (absent for the IMU-only model), *clean* ``imu``
 ``(B, T, C)``, ``mask (B, T)`` bool, optionally ``weight (B,)`` (0 on padding windows of a
-last, short batch) and, for evaluation, the true ``offset (B, C)``.
+last, short batch), for evaluation the injected ``offset (B, C)``, and under the ``total``
+label the sensor's own ``bias (B, C)``, which the label adds to the offset.
 
 - :func:`train_step` ``(state, batch, key) -> (state, metrics)``: splits ``key`` into an
   offset key and a dropout key, draws a new offset per window by the configured protocol
@@ -201,6 +202,13 @@ def _offset_scale(state: CalibState) -> jax.Array:
     return jnp.maximum(offset_moments(state.config.injection, state.imu_stats)[1], _MIN_STD)
 
 
+def _label(batch: dict, offsets: jax.Array) -> jax.Array:
+    """What the model learns to predict: the injected ``offsets (B, C)``, plus the sensor's
+    own bias ``batch["bias"]`` under the ``total`` label (:func:`uavcal_jax.calib.data.gather`
+    adds it only then)."""
+    return offsets + batch["bias"] if "bias" in batch else offsets
+
+
 def _train_step(state: CalibState, batch: dict, key: jax.Array):
     config = state.config
     frames, clean, mask = _inputs(config, batch)
@@ -208,10 +216,11 @@ def _train_step(state: CalibState, batch: dict, key: jax.Array):
     k_offset, k_dropout = jax.random.split(key)
     offsets = training_offsets(k_offset, config.injection, state.imu_stats, clean.shape[0])
     imu = inject(clean, offsets, mask)
+    target = _label(batch, offsets)
 
     def loss_fn(params):
         pred, stats = _apply(state, params, frames, imu, mask, train=True, key=k_dropout)
-        loss, terms = calibration_loss(pred, offsets, config.loss, weight,
+        loss, terms = calibration_loss(pred, target, config.loss, weight,
                                        _offset_scale(state))
         return loss, (terms, stats, pred)
 
@@ -221,7 +230,7 @@ def _train_step(state: CalibState, batch: dict, key: jax.Array):
                                                              state.params)
     state = state.replace(step=state.step + 1, params=optax.apply_updates(state.params, updates),
                           batch_stats=batch_stats, opt_state=opt_state)
-    err = jnp.sum(weight[:, None] * jnp.square(pred - offsets))
+    err = jnp.sum(weight[:, None] * jnp.square(pred - target))
     metrics = {"loss": loss, **terms, "grad_norm": optax.tree.norm(grads),
                "offset_rmse": jnp.sqrt(err / jnp.maximum(jnp.sum(weight) * pred.shape[1], 1))}
     return state, metrics
@@ -234,15 +243,16 @@ def _eval_step(state: CalibState, batch: dict):
     offsets = jnp.asarray(batch["offset"], jnp.float32)
     pred, _ = _apply(state, state.params, frames, inject(clean, offsets, mask), mask,
                      train=False)
-    loss, terms = calibration_loss(pred, offsets, config.loss, weight, _offset_scale(state))
-    return {"loss": loss, **terms, "sums": metric_sums(pred, offsets, weight), "pred": pred}
+    target = _label(batch, offsets)
+    loss, terms = calibration_loss(pred, target, config.loss, weight, _offset_scale(state))
+    return {"loss": loss, **terms, "sums": metric_sums(pred, target, weight), "pred": pred}
 
 
 @jax.jit
 def train_step(state: CalibState, batch: dict, key: jax.Array):
     """``(state, batch, key) -> (state, metrics)``: one AdamW step (see the module
     docstring); ``metrics`` scalars: ``loss``, ``offset``, ``sign``, ``magnitude``,
-    ``sign_exact``, ``grad_norm`` and ``offset_rmse`` (on the injected offsets)."""
+    ``sign_exact``, ``grad_norm`` and ``offset_rmse`` (against the label: :func:`_label`)."""
     return _train_step(state, batch, key)
 
 

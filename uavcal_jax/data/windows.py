@@ -42,6 +42,7 @@ import numpy as np
 
 from uavcal_jax.data.sequence import FrameStream, Sequence
 from uavcal_jax.data.timing import measured_rate_hz
+from uavcal_jax.data.true_offset import sensor_bias
 from uavcal_jax.errors import DataError
 
 
@@ -156,6 +157,10 @@ class WindowSet:
         frame_mask: (n_windows, T) bool, ``False`` on padded slots.
         imu_range: (n_windows, 2) int64 ``[first, stop)`` of all IMU samples inside the window
             (for consumers that want every sample, e.g. preintegration).
+        sensor_bias: (n_windows, 6) float64, the ground truth's mean IMU bias over each window
+            (gyro rad/s xyz, accel m/s^2 xyz; :func:`uavcal_jax.data.true_offset.sensor_bias`),
+            the sensor's own share of the ``total`` label; ``None`` when the recording's ground
+            truth has no bias columns.
     """
 
     config: WindowConfig
@@ -170,6 +175,7 @@ class WindowSet:
     frame_index: np.ndarray
     frame_mask: np.ndarray
     imu_range: np.ndarray
+    sensor_bias: np.ndarray | None = None
     meta: dict = field(default_factory=dict, compare=False)
 
     def __len__(self) -> int:
@@ -196,12 +202,14 @@ class WindowSet:
     def batch(self, indices) -> dict[str, np.ndarray]:
         """Gathered copies for windows ``indices``: ``frames (B, T, H, W[, 3])`` uint8,
         ``mask (B, T)``, ``t_ns (B, T)``, ``gyro (B, T, 3)``, ``accel (B, T, 3)``,
-        ``imu_t_ns (B, T)``, ``window (B,)``."""
+        ``imu_t_ns (B, T)``, ``window (B,)``, and ``sensor_bias (B, 6)`` when the windows have
+        it."""
         indices = np.asarray(indices, dtype=np.int64).reshape(-1)
         idx, mask = self.frame_index[indices], self.frame_mask[indices]
         frames = self.frames[np.maximum(idx, 0)]
         frames[~mask] = 0
-        return {"frames": frames, **self._side(idx, mask), "window": indices}
+        return {"frames": frames, **self._side(idx, mask), "window": indices,
+                **self._bias(indices)}
 
     def samples(self, indices=None) -> dict[str, np.ndarray]:
         """:meth:`batch` without the frames (cheap for every window of a long sequence,
@@ -210,15 +218,20 @@ class WindowSet:
         indices = (np.arange(len(self)) if indices is None
                    else np.asarray(indices, dtype=np.int64).reshape(-1))
         return {**self._side(self.frame_index[indices], self.frame_mask[indices]),
-                "window": indices}
+                "window": indices, **self._bias(indices)}
 
     def subset(self, indices) -> WindowSet:
         """The windows ``indices`` (any integer array, in its order) as a WindowSet of their
         own; ``frames`` and the IMU arrays are shared, not copied."""
         idx = np.asarray(indices, np.int64)
+        bias = None if self.sensor_bias is None else self.sensor_bias[idx]
         return dataclasses.replace(self, start_ns=self.start_ns[idx],
                                    frame_index=self.frame_index[idx],
-                                   frame_mask=self.frame_mask[idx], imu_range=self.imu_range[idx])
+                                   frame_mask=self.frame_mask[idx], imu_range=self.imu_range[idx],
+                                   sensor_bias=bias)
+
+    def _bias(self, indices: np.ndarray) -> dict:
+        return {} if self.sensor_bias is None else {"sensor_bias": self.sensor_bias[indices]}
 
     def _side(self, idx: np.ndarray, mask: np.ndarray, squeeze: bool = False) -> dict:
         safe = np.maximum(idx, 0)
@@ -320,11 +333,13 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
     imu_index = nearest_index(frame_t, imu.t_ns).astype(np.int32)
     imu_range = np.stack([np.searchsorted(imu.t_ns, starts, side="left"),
                           np.searchsorted(imu.t_ns, starts + duration_ns, side="left")], axis=1)
+    bias = [sensor_bias(sequence.ground_truth, s, s + duration_ns - 1) for s in starts]
     return WindowSet(
         config=config, name=sequence.name, frames=frame_arr, frame_t_ns=frame_t,
         imu_index=imu_index, imu_t_ns=imu.t_ns, gyro=imu.gyro, accel=imu.accel,
         start_ns=starts, frame_index=frame_index.astype(np.int32), frame_mask=mask,
         imu_range=imu_range.astype(np.int64),
+        sensor_bias=None if any(b is None for b in bias) else np.stack(bias),
         meta={"camera": config.camera, "rate_hz": rate, "frames_per_window": T,
               "frame_step": config.frame_step},
     )
