@@ -1,0 +1,220 @@
+"""track.locate / track.stereo: a box + depth (or a stereo pair) + the pose -> the target's world
+centre, against ground truth from synthetic renders of a target patch in front of a farther
+background, with holes (the centre pixel among them)."""
+
+from __future__ import annotations
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from uavcal_jax.data import euroc_rig as rig
+from uavcal_jax.geometry import camera as C
+from uavcal_jax.track import locate as L
+from uavcal_jax.track import stereo as S
+
+EXTENT = 0.6  # the target's depth extent, metres
+HALF = 0.35  # half-size of its front face, metres
+BACKGROUND = 9.0  # metres along the camera's z
+
+
+def _pose(yaw: float, position) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(yaw), np.sin(yaw)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = position
+    return T
+
+
+def _patch_frame(centre_C: np.ndarray):
+    """Front face of the target: centre, normal (the ray to the centre) and two in-plane axes.
+    The target's centre lies EXTENT/2 behind the face along the ray, as locate assumes."""
+    ray = centre_C / np.linalg.norm(centre_C)
+    e1 = np.cross([0.0, 1.0, 0.0], ray)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(ray, e1)
+    return centre_C - 0.5 * EXTENT * ray, ray, e1, e2
+
+
+_RAYS: dict[tuple, np.ndarray] = {}
+
+
+def _rays(cam: C.PinholeRadtan) -> np.ndarray:
+    """(H, W, 3) unit-z pixel rays, computed once per lens."""
+    key = (cam.resolution, *(float(v) for v in cam.intrinsics), *(float(v) for v in cam.distortion))
+    if key not in _RAYS:
+        _RAYS[key] = np.asarray(jax.jit(C.pixel_rays)(cam), np.float64)
+    return _RAYS[key]
+
+
+def _render_depth(cam: C.PinholeRadtan, centre_C: np.ndarray, hole_fraction=0.25, seed=0):
+    """(H, W) z-depth: the target's front face in front of a fronto-parallel background at
+    BACKGROUND m, with random holes (0) and a hole at the box centre; and the tight box
+    (inclusive-exclusive pixel edges, as the simulator labels)."""
+    rays = _rays(cam)  # (H, W, 3) unit-z
+    p0, n, e1, e2 = _patch_frame(centre_C)
+    t = (p0 @ n) / (rays @ n)
+    q = t[..., None] * rays - p0
+    on = (np.abs(q @ e1) <= HALF) & (np.abs(q @ e2) <= HALF) & (t > 0)
+    depth = np.where(on, t, BACKGROUND)
+    rows, cols = np.nonzero(on)
+    box = np.array([cols.min(), rows.min(), cols.max() + 1, rows.max() + 1], np.float64)
+    rng = np.random.default_rng(seed)
+    depth[rng.random(depth.shape) < hole_fraction] = 0.0
+    cu, cv = int((box[0] + box[2]) / 2), int((box[1] + box[3]) / 2)
+    depth[cv - 2:cv + 3, cu - 2:cu + 3] = 0.0  # the centre pixel is a hole
+    return depth.astype(np.float32), box
+
+
+@pytest.fixture(scope="module")
+def cam() -> C.PinholeRadtan:
+    return rig.euroc_camera(0).scaled(0.25)  # 188 x 120, EuRoC's distortion
+
+
+@pytest.fixture(scope="module")
+def setup():
+    T_BC = rig.EUROC_CAM0_T_BS
+    T_WB = _pose(0.7, [1.0, -2.0, 1.5])
+    return T_BC, T_WB, T_WB @ T_BC
+
+
+def _world(T, p):
+    return T[:3, :3] @ p + T[:3, 3]
+
+
+@pytest.mark.parametrize("centre_C", [(0.0, 0.0, 4.0), (-0.9, 0.4, 3.0), (0.8, -0.5, 6.0)])
+def test_located_point_matches_the_true_centre(cam, setup, centre_C):
+    T_BC, T_WB, T_WC = setup
+    centre_C = np.asarray(centre_C)
+    depth, box = _render_depth(cam, centre_C)
+    cu, cv = int((box[0] + box[2]) / 2), int((box[1] + box[3]) / 2)
+    assert depth[cv, cu] == 0.0  # a centre-pixel reader would see nothing here
+    out = L.locate_box(box, depth, cam, T_BC, T_WB, extent=EXTENT)
+    assert bool(out.located) and int(out.reason) == L.LOCATED
+    err = np.linalg.norm(np.asarray(out.point) - _world(T_WC, centre_C))
+    assert err < 0.04, err
+    # without the front-surface correction the point sits ~EXTENT/2 short of the centre
+    short = L.locate_box(box, depth, cam, T_BC, T_WB, extent=0.0)
+    assert np.linalg.norm(np.asarray(short.point) - _world(T_WC, centre_C)) > 0.25
+    cov = np.asarray(out.covariance)
+    assert np.allclose(cov, cov.T, atol=1e-9) and np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_no_depth_is_not_located_never_the_origin(cam, setup):
+    T_BC, T_WB, _ = setup
+    depth, box = _render_depth(cam, np.array([0.0, 0.0, 4.0]))
+    for bad in (np.zeros_like(depth), np.full_like(depth, np.nan)):
+        out = L.locate_box(box, bad, cam, T_BC, T_WB)
+        assert not bool(out.located) and int(out.reason) == L.NO_DEPTH
+        assert np.all(np.isnan(np.asarray(out.point)))
+    outside = L.locate_box(np.array([500.0, 500.0, 520.0, 530.0]), depth, cam, T_BC, T_WB)
+    assert int(outside.reason) == L.OUTSIDE_IMAGE and not bool(outside.located)
+    empty = L.locate_box(np.array([50.0, 50.0, 50.0, 60.0]), depth, cam, T_BC, T_WB)
+    assert int(empty.reason) == L.OUTSIDE_IMAGE
+
+
+def test_robust_depth_rejects_background_and_specks():
+    rng = np.random.default_rng(1)
+    values = np.concatenate([4.0 + 0.01 * rng.standard_normal(60),  # the target
+                             np.full(30, 12.0), np.zeros(20), [0.5, 0.6]])  # bg, holes, specks
+    out = L.robust_depth(jnp.asarray(values))
+    assert int(out.reason) == L.LOCATED and abs(float(out.depth) - 4.0) < 0.01
+    scattered = L.robust_depth(jnp.linspace(1.0, 30.0, 100), L.LocateConfig(min_inliers=0.3))
+    assert int(scattered.reason) == L.NO_CONSISTENT_SURFACE
+
+
+def test_covariance_on_the_optical_axis_is_the_stereo_model(x64):
+    # no distortion, the principal point: cov_C = diag(((z + e/2) s_px / f)^2 (x, y), s_z^2)
+    cam = C.PinholeRadtan.create((200.0, 180.0, 80.0, 50.0), (0.0,) * 4, (160, 100))
+    cfg = L.LocateConfig(pixel_sigma=1.5, disparity_sigma=0.3, baseline=0.12,
+                         depth_sigma_min=0.0)
+    z, e = 5.0, 0.4
+    R_WC = Rotation.from_euler("xyz", [0.3, -0.2, 1.1]).as_matrix()
+    T_WC = np.eye(4)
+    T_WC[:3, :3], T_WC[:3, 3] = R_WC, [1.0, 2.0, 3.0]
+    measured = L.BoxDepth(jnp.asarray(z), jnp.asarray(L.LOCATED), 1.0, 1.0)
+    out = L.locate_from_depth(jnp.array([80.0, 50.0]), measured, cam, jnp.asarray(T_WC), e, cfg)
+    s_z = z * z * 0.3 / (200.0 * 0.12)
+    cov_C = np.diag([((z + e / 2) * 1.5 / 200.0) ** 2, ((z + e / 2) * 1.5 / 180.0) ** 2, s_z ** 2])
+    np.testing.assert_allclose(np.asarray(out.covariance), R_WC @ cov_C @ R_WC.T,
+                               rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(out.point), R_WC @ [0, 0, z + e / 2] + [1, 2, 3],
+                               atol=1e-12)
+
+
+def test_locate_jits_and_vmaps_over_boxes(cam, setup):
+    T_BC, T_WB, T_WC = setup
+    centre_C = np.array([0.0, 0.0, 4.0])
+    depth, box = _render_depth(cam, centre_C)
+    boxes = jnp.stack([jnp.asarray(box), jnp.array([500.0, 500.0, 510.0, 510.0])])
+    f = jax.jit(jax.vmap(lambda b: L.locate_box(b, depth, cam, T_BC, T_WB, extent=EXTENT)))
+    out = f(boxes)
+    assert np.asarray(out.located).tolist() == [True, False]
+    assert np.linalg.norm(np.asarray(out.point[0]) - _world(T_WC, centre_C)) < 0.04
+
+
+# --- the stereo path ------------------------------------------------------------------------
+
+
+def _texture(seed: int, size=512) -> np.ndarray:
+    noise = np.random.default_rng(seed).random((size, size)).astype(np.float32)
+    noise = cv2.GaussianBlur(noise, (0, 0), 1.5)
+    noise = (noise - noise.min()) / (noise.max() - noise.min())
+    return noise * 255.0
+
+
+def _render_grey(cam, T_WC, centre_W, n_W, e1_W, e2_W, tex_target, tex_bg, bg_plane):
+    """(H, W) uint8: the textured front face of the target (texels of 1 cm) over a textured
+    background plane (texels of 3 cm), both planes in world coordinates."""
+    rays = _rays(cam) @ T_WC[:3, :3].T  # world directions
+    origin = T_WC[:3, 3]
+
+    def hit(p0, n, a1, a2, half, texel, tex):
+        t = ((p0 - origin) @ n) / (rays @ n)
+        q = origin + t[..., None] * rays - p0
+        u, v = q @ a1, q @ a2
+        inside = (t > 0) & (np.abs(u) <= half) & (np.abs(v) <= half)
+        size = tex.shape[0]
+        mx = np.mod(u / texel + size / 2, size - 1).astype(np.float32)
+        my = np.mod(v / texel + size / 2, size - 1).astype(np.float32)
+        value = cv2.remap(tex, mx, my, cv2.INTER_LINEAR)
+        return np.where(inside, t, np.inf), value
+
+    t_target, v_target = hit(centre_W, n_W, e1_W, e2_W, HALF, 0.01, tex_target)
+    t_bg, v_bg = hit(*bg_plane, np.inf, 0.03, tex_bg)
+    return np.clip(np.where(t_target < t_bg, v_target, v_bg), 0, 255).astype(np.uint8)
+
+
+def test_stereo_locates_the_target_in_a_synthetic_pair(setup):
+    T_BC0, T_WB, _ = setup
+    T_BC1 = rig.EUROC_CAM1_T_BS
+    cam0, cam1 = rig.euroc_camera(0).scaled(0.5), rig.euroc_camera(1).scaled(0.5)  # 376 x 240
+    T_WC0, T_WC1 = T_WB @ T_BC0, T_WB @ T_BC1
+    centre_C = np.array([0.3, -0.1, 1.8])  # in the left camera
+    p0_C, n_C, e1_C, e2_C = _patch_frame(centre_C)
+    R = T_WC0[:3, :3]
+    face = (_world(T_WC0, p0_C), R @ n_C, R @ e1_C, R @ e2_C)
+    bg_n = R @ np.array([0.0, 0.0, 1.0])
+    bg = (_world(T_WC0, np.array([0.0, 0.0, BACKGROUND])), bg_n,
+          R @ np.array([1.0, 0.0, 0.0]), R @ np.array([0.0, 1.0, 0.0]))
+    tex_t, tex_b = _texture(1), _texture(2)
+    left = _render_grey(cam0, T_WC0, *face, tex_t, tex_b, bg)
+    right = _render_grey(cam1, T_WC1, *face, tex_t, tex_b, bg)
+    depth, box = _render_depth(cam0, centre_C, hole_fraction=0.0)  # only for the true box
+
+    rect = S.rectify_stereo(cam0, cam1, T_BC0, T_BC1)
+    assert abs(rect.baseline - np.linalg.norm(rig.euroc_T_C0C1()[:3, 3])) < 1e-6
+    out = S.locate_box_stereo(box, left, right, rect, T_BC0, T_WB, extent=EXTENT)
+    assert bool(out.located), L.REASONS[int(out.reason)]
+    err = np.asarray(out.point) - _world(T_WC0, centre_C)
+    sigma = np.sqrt(np.linalg.eigvalsh(np.asarray(out.covariance)).max())
+    assert np.linalg.norm(err) < 0.06, (err, sigma)
+    # the point's error is inside its own 3-sigma ellipsoid
+    d2 = err @ np.linalg.solve(np.asarray(out.covariance, np.float64), err)
+    assert d2 < 3.0 ** 2 * 3, d2
+    # an untextured (unmatched) pair gives no point
+    blank = np.full_like(left, 128)
+    assert not bool(S.locate_box_stereo(box, blank, blank, rect, T_BC0, T_WB).located)

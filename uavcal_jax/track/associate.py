@@ -1,0 +1,118 @@
+"""Frame-to-frame association of detections into tracks, and the choice of the target to follow.
+
+Plain NumPy (detections vary in number per frame). Each track predicts its box one frame on
+with the box's last velocity (constant velocity in the image, so two targets crossing keep
+their ids); detections are matched to the predictions of the same class by the Hungarian
+assignment on IoU (``scipy.optimize.linear_sum_assignment``), pairs below ``min_iou`` are not
+matched. Unmatched detections start new tracks; a track unmatched for more than
+``max_missed`` frames ends. Boxes are ``(x1, y1, x2, y2)`` pixels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+__all__ = ["AssociateConfig", "assign_track_ids", "box_iou", "longest_track"]
+
+
+@dataclasses.dataclass(frozen=True)
+class AssociateConfig:
+    """Settings of the association.
+
+    Attributes:
+        min_iou: the least IoU between a track's predicted box and a detection to match them.
+        max_missed: frames a track may go unmatched before it ends (predicted meanwhile).
+    """
+
+    min_iou: float = 0.2
+    max_missed: int = 5
+
+    def __post_init__(self):
+        if not 0.0 <= self.min_iou < 1.0:
+            raise ValueError(f"min_iou must be in [0, 1), got {self.min_iou}")
+        if self.max_missed < 0:
+            raise ValueError(f"max_missed must be >= 0, got {self.max_missed}")
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pairwise IoU of boxes ``a`` (N, 4) and ``b`` (M, 4) -> (N, M)."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)[:, None, :]
+    b = np.asarray(b, np.float64).reshape(-1, 4)[None, :, :]
+    wh = np.clip(np.minimum(a[..., 2:], b[..., 2:]) - np.maximum(a[..., :2], b[..., :2]), 0, None)
+    inter = wh[..., 0] * wh[..., 1]
+
+    def area(x):
+        return np.clip(x[..., 2] - x[..., 0], 0, None) * np.clip(x[..., 3] - x[..., 1], 0, None)
+
+    union = area(a) + area(b) - inter
+    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+@dataclasses.dataclass
+class _Track:
+    id: int
+    class_id: int
+    box: np.ndarray  # last matched box
+    velocity: np.ndarray  # box change per frame
+    last_frame: int
+
+
+def assign_track_ids(boxes: Sequence[np.ndarray], class_ids: Sequence[np.ndarray],
+              config: AssociateConfig = AssociateConfig()) -> list[np.ndarray]:
+    """Track ids for every detection of every frame.
+
+    Args:
+        boxes: per frame, (N_k, 4) detected boxes.
+        class_ids: per frame, (N_k,) their class ids.
+        config: :class:`AssociateConfig`.
+
+    Returns:
+        per frame, (N_k,) int track ids (0, 1, 2, ... in order of first appearance).
+    """
+    if len(boxes) != len(class_ids):
+        raise ValueError(f"{len(boxes)} frames of boxes but {len(class_ids)} of class ids")
+    tracks: list[_Track] = []
+    next_id = 0
+    out = []
+    for k, (frame_boxes, frame_classes) in enumerate(zip(boxes, class_ids, strict=True)):
+        frame_boxes = np.asarray(frame_boxes, np.float64).reshape(-1, 4)
+        frame_classes = np.asarray(frame_classes, np.int64).reshape(-1)
+        tracks = [t for t in tracks if k - t.last_frame <= config.max_missed + 1]
+        ids = np.full(len(frame_boxes), -1, np.int64)
+        if tracks and len(frame_boxes):
+            predicted = np.stack([t.box + (k - t.last_frame) * t.velocity for t in tracks])
+            iou = box_iou(predicted, frame_boxes)
+            same = np.array([t.class_id for t in tracks])[:, None] == frame_classes[None, :]
+            iou = np.where(same, iou, 0.0)
+            rows, cols = linear_sum_assignment(-iou)
+            for r, c in zip(rows, cols, strict=True):
+                if iou[r, c] < max(config.min_iou, 1e-12):
+                    continue
+                track = tracks[r]
+                gap = k - track.last_frame
+                track.velocity = (frame_boxes[c] - track.box) / gap
+                track.box, track.last_frame = frame_boxes[c], k
+                ids[c] = track.id
+        for c in np.flatnonzero(ids < 0):
+            tracks.append(_Track(next_id, int(frame_classes[c]), frame_boxes[c], np.zeros(4), k))
+            ids[c] = next_id
+            next_id += 1
+        out.append(ids)
+    return out
+
+
+def longest_track(track_ids: Sequence[np.ndarray], class_ids: Sequence[np.ndarray],
+                  class_id: int) -> int | None:
+    """The id of the longest track (most frames) of class ``class_id``; ties go to the
+    earliest track; ``None`` when there is none."""
+    ids = np.concatenate([np.asarray(t, np.int64).reshape(-1) for t in track_ids] or [[]])
+    classes = np.concatenate([np.asarray(c, np.int64).reshape(-1) for c in class_ids] or [[]])
+    ids = ids[classes == class_id].astype(np.int64)
+    if ids.size == 0:
+        return None
+    counts = np.bincount(ids)
+    return int(np.argmax(counts))
