@@ -13,8 +13,9 @@ from uavcal_jax.data.tum import read_tum
 from uavcal_jax.errors import DataError
 from uavcal_jax.geometry.frames import GRAVITY
 from uavcal_jax.sim.flights import FlightConfig, procedural_flight, straight_flight
+from uavcal_jax.sim.pose_samples import remove_position_jumps
 from uavcal_jax.sim.trajectory import Trajectory, sign_continuous
-from uavcal_jax.sim.trajectory_fit import FitConfig, fit_tum_trajectory, remove_position_jumps
+from uavcal_jax.sim.trajectory_fit import FitConfig, fit_tum_trajectory
 
 
 def _rotations(q: np.ndarray) -> Rotation:
@@ -235,8 +236,9 @@ def _synthetic_recording(seed: int = 0, rate: float = 200.0, duration: float = 3
 
 def test_fit_recovers_a_known_smooth_trajectory():
     """Sampled at 200 Hz with 0.2 mm / ~0.02 degree noise (random quaternion signs), the fit
-    recovers the true motion; the accelerations keep only the noise inside the fit's ~8 Hz
-    band."""
+    recovers the true motion. Its smoothing is matched to the noise it measures, so the
+    accelerations keep a few hundredths of m/s^2 of it (the least-squares fit, without that,
+    kept ~0.1 m/s^2 RMS, 0.4 max); the price is a bias of ~0.05 degree at the sharpest turns."""
     traj, t_ns, state = _synthetic_recording()
     rng = np.random.default_rng(0)
     q_noisy = state.quaternion + rng.normal(scale=2e-4, size=state.quaternion.shape)
@@ -248,10 +250,10 @@ def test_fit_recovers_a_known_smooth_trajectory():
     t = np.linspace(fit.t_start + 1.0, fit.t_end - 1.0, 2000)
     assert np.abs(fit.position(t) - traj.position(t)).max() < 6e-4
     da = fit.acceleration(t) - traj.acceleration(t)
-    assert np.abs(da).max() < 0.6 and np.sqrt(np.mean(da**2)) < 0.15
-    assert np.degrees(_rotation_angle(fit.quaternion(t), traj.quaternion(t)).max()) < 0.05
+    assert np.abs(da).max() < 0.1 and np.sqrt(np.mean(da**2)) < 0.02
+    assert np.degrees(_rotation_angle(fit.quaternion(t), traj.quaternion(t)).max()) < 0.07
     dw = fit.angular_velocity_body(t) - traj.angular_velocity_body(t)
-    assert np.abs(dw).max() < 0.03 and np.sqrt(np.mean(dw**2)) < 0.008
+    assert np.abs(dw).max() < 0.03 and np.sqrt(np.mean(dw**2)) < 0.004
 
 
 def test_position_jumps_are_removed():

@@ -31,3 +31,8 @@ class DataError(ValueError):
 
 class DataRepairWarning(UserWarning):
     """Input was repaired (rows dropped, frames skipped, values clipped); the message says how."""
+
+
+class FlightLimitWarning(UserWarning):
+    """A flight exceeds what a drone can fly (the message gives the peak and the limit); the
+    recording is written, but its IMU is probably not a real one's."""

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import textwrap
 import time
+import warnings
 from pathlib import Path
 
 from uavcal_jax.argtypes import (
@@ -17,7 +19,7 @@ from uavcal_jax.argtypes import (
 from uavcal_jax.config import apply_overrides, valid_keys
 from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.data.euroc_rig import EUROC_RESOLUTION
-from uavcal_jax.errors import DataError
+from uavcal_jax.errors import DataError, DataRepairWarning, FlightLimitWarning
 from uavcal_jax.sim.config import COLORS, SimConfig
 
 #: The option defaults, from :class:`SimConfig` (one place for each).
@@ -33,7 +35,12 @@ and accel biases) and target0 (per frame and camera: boxes of the targets' visib
 their 3D world positions). The resolved configuration (the options, then any --set) is written
 to DIR/sim_config.json. Read the result with `uavcal info DIR`.
 
-The flight is a TUM trajectory file (--trajectory) or a procedural flight from --seed. Frames
+The flight is a TUM trajectory file (--trajectory) or a procedural flight from --seed. A file's
+poses are fitted with smoothing matched to the noise measured on them (irregular intervals,
+near-duplicate stamps, gaps and position steps are handled); sim_config.json records the fit's
+residual and the flight's peak specific force and angular rate (flight.trajectory_fit). A
+flight beyond what a drone flies is simulated with a one-line warning; one no airframe could
+fly (a broken file) is refused (the limits: uavcal_jax.sim.trajectory_fit.FitConfig). Frames
 image like EuRoC's MT9V034 (exposure x gain calibrated to the real V1_01 frames' brightness,
 shot and read noise measured on them, motion blur over the exposure) unless --ideal-camera. The
 same options and seed give byte-identical files. The output is written to a temporary folder
@@ -192,14 +199,24 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         raise DataError(str(err)) from None
     t0 = time.perf_counter()
-    report = simulate_report(config, args.out, progress=not args.json, overwrite=args.overwrite)
+    notes: list[str] = []
+    shown = (FlightLimitWarning, DataRepairWarning)
+    with warnings.catch_warnings():
+        for category in shown:
+            warnings.simplefilter("always", category)
+        warnings.showwarning = _one_line(warnings.showwarning, shown, notes)
+        report = simulate_report(config, args.out, progress=not args.json,
+                                 overwrite=args.overwrite)
     seconds = time.perf_counter() - t0
     counts = report.resolved["counts"]
+    flight = report.resolved["flight"]
     summary = {"out": str(report.root), "seconds": round(seconds, 3), **counts,
-               "t_start_ns": report.resolved["flight"]["t_start_ns"],
-               "t_end_ns": report.resolved["flight"]["t_end_ns"],
+               "t_start_ns": flight["t_start_ns"], "t_end_ns": flight["t_end_ns"],
                "imu_offset": report.resolved["config"]["imu_offset"],
-               "timings": {k: round(v, 3) for k, v in report.timings.items()}}
+               "timings": {k: round(v, 3) for k, v in report.timings.items()},
+               "warnings": notes}
+    if "trajectory_fit" in flight:
+        summary["trajectory_fit"] = flight["trajectory_fit"]
     if args.json:
         print_json(summary)
     else:
@@ -210,3 +227,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {report.root}: {counts['imu']} IMU samples{offset}{frames}{labels} "
               f"in {seconds:.1f} s")
     return 0
+
+
+def _one_line(show, categories: tuple[type[Warning], ...], notes: list[str]):
+    """A ``warnings.showwarning`` that prints ``categories`` as one ``warning: ...`` line on
+    stderr as they happen (a flight-limit warning comes before minutes of rendering) and keeps
+    their text in ``notes``; other warnings go to ``show`` as usual."""
+
+    def showwarning(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, categories):
+            notes.append(str(message))
+            print(f"warning: {message}", file=sys.stderr, flush=True)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    return showwarning

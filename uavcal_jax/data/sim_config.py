@@ -10,7 +10,16 @@ cache may reuse). One JSON object:
   offset added to the written IMU, 6 numbers (gyro rad/s xyz, accel m/s^2 xyz), or ``null``;
 - ``seeds``: the seed of each stage;
 - ``flight``: where the trajectory came from, and ``t_start_ns`` / ``t_end_ns`` (the IMU's
-  first and last timestamps);
+  first and last timestamps); for a trajectory file also ``trajectory_fit``
+  (:class:`uavcal_jax.sim.trajectory_fit.FitReport`), an object of numbers: ``poses``,
+  ``merged`` (near-duplicate stamps merged), ``jumps`` (position steps removed),
+  ``median_period_s``, ``max_gap_s``, ``knot_spacing_s``, ``smoothing_position``,
+  ``smoothing_rotation`` (the penalty weights chosen), ``position_noise_m`` /
+  ``rotation_noise_rad`` (the noise measured on the poses) and ``position_residual_rms_m`` /
+  ``rotation_residual_rms_rad`` (RMS fit residual; both as 3-D magnitudes: metres, and the
+  angle between fitted and recorded orientation in radians), and over the simulated window
+  ``peak_specific_force_mps2`` (max ``|a - g|``, what an accelerometer reads),
+  ``peak_acceleration_mps2`` (max kinematic ``|a|``) and ``peak_angular_rate_radps``;
 - ``imu_noise``: the noise densities, bias random walks and turn-on bias (``null`` without
   noise); ``imu_calibration``: the IMU calibration written;
 - ``counts``: samples and frames written per stream;

@@ -15,6 +15,15 @@ flight starts at the trajectory's own ``t_start`` (0 s). Cameras are triggered o
 (as in EuRoC: every ``imu_rate_hz / camera_rate_hz``-th IMU timestamp) when the rates divide;
 the scene (moving targets) is evaluated at seconds since the flight's first sample.
 
+Trajectory files. The poses are fitted with smoothing matched to the noise measured on them
+(:func:`uavcal_jax.sim.trajectory_fit.fit_trajectory_report`: irregular intervals,
+near-duplicate stamps, gaps and position steps are handled); ``sim_config.json`` records the
+fit's residual and the flight's peak specific force and angular rate
+(``flight.trajectory_fit``). A flight beyond what a drone flies is simulated with a
+:class:`~uavcal_jax.errors.FlightLimitWarning`; one no airframe could fly (a broken
+file) is refused with a ``DataError`` (the limits are
+:class:`~uavcal_jax.sim.trajectory_fit.FitConfig` fields).
+
 Body frame. The body frame is the IMU frame. A trajectory file is EuRoC's IMU frame already; a
 procedural flight (a quadrotor frame, z up) gets EuRoC's IMU mounting (:func:`mount_imu`: IMU
 x up, z forward and 20 degrees down), so EuRoC's camera extrinsics look ahead and the IMU
@@ -65,7 +74,7 @@ from uavcal_jax.sim.config import SimConfig, camera_calibrations, stage_seeds
 from uavcal_jax.sim.flights import procedural_flight
 from uavcal_jax.sim.frames import render_frames
 from uavcal_jax.sim.trajectory import Trajectory
-from uavcal_jax.sim.trajectory_fit import fit_tum_trajectory
+from uavcal_jax.sim.trajectory_fit import FitConfig, check_flight_limits, fit_trajectory_report
 
 __all__ = ["SimReport", "imu_calibration", "load_flight", "mount_imu", "simulate",
            "simulate_report"]
@@ -111,9 +120,16 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
     nanoseconds (so with EuRoC's 200 Hz ground truth and a ``start`` on its 5 ms grid, the IMU
     samples fall on the file's own timestamps).
 
+    A trajectory file's fit is described under ``"trajectory_fit"``
+    (:class:`~uavcal_jax.sim.trajectory_fit.FitReport`: residual, measured noise, peak
+    specific force and angular rate over the window), and checked against a drone's limits
+    (:func:`~uavcal_jax.sim.trajectory_fit.check_flight_limits`: a
+    :class:`~uavcal_jax.errors.FlightLimitWarning` beyond them).
+
     Raises:
-        DataError: the trajectory file is unreadable, or ``start``/``duration`` fall outside
-            its time range (the message names the file).
+        DataError: the trajectory file is unreadable, ``start``/``duration`` fall outside
+            its time range, or its fitted flight is beyond any airframe (a broken file); the
+            message names the file.
     """
     period_ns = int(round(1e9 / config.imu_rate_hz))
     n = int(np.floor(config.duration * config.imu_rate_hz + 1e-9)) + 1
@@ -137,12 +153,16 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
             raise DataError(f"--start {config.start:g} s + --duration {config.duration:g} s "
                             f"runs past the end of the trajectory (it spans {span:.3f} s; at "
                             f"most {span - config.start:.3f} s from this start)", path)
+        fit_config = FitConfig()
         try:
-            traj = fit_tum_trajectory(gt, start=t0_ns * 1e-9, duration=config.duration)
+            traj, fit = fit_trajectory_report(gt, start=t0_ns * 1e-9, duration=config.duration,
+                                              config=fit_config)
         except ValueError as err:
             raise DataError(f"cannot fit a trajectory: {err}", path) from None
+        check_flight_limits(fit, fit_config, path)
         info = {"source": str(path.resolve()), "file_first_t_ns": first_ns,
-                "file_last_t_ns": last_ns, "start_s_after_first": float(config.start)}
+                "file_last_t_ns": last_ns, "start_s_after_first": float(config.start),
+                "trajectory_fit": fit.to_dict()}
     t_ns = t0_ns + period_ns * np.arange(n, dtype=np.int64)
     return traj, t_ns, info
 
