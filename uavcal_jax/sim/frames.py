@@ -2,10 +2,11 @@
 depth maps and target labels to an :class:`~uavcal_jax.data.euroc_writer.EurocWriter`.
 
 Both EuRoC cameras (cam0, cam1) are rendered at ``T_WC = T_WB(t) @ T_BS`` at the frame times
-(:func:`frame_times`: triggered on IMU samples, as in EuRoC, when the rates divide), in a scene
-built around the flight. Depth ``depthN`` is cam N's z-depth in uint16 millimetres (0 = no
-depth). Target labels (``target0``) list, for each frame and camera, every target with visible
-pixels: the tight box around those pixels, their count, and the target's 3D world position.
+(:func:`frame_times`: triggered on IMU samples, as in EuRoC, when the rates divide; or the
+caller's timestamps), in a scene built around the flight. Depth ``depthN`` is cam N's z-depth
+in uint16 millimetres (0 = no depth). Target labels (``target0``) list, for each frame and
+camera, every target with visible pixels: the tight box around those pixels, their count, and
+the target's 3D world position.
 
 The frames go through EuRoC's camera (:class:`CameraEffects`, on unless
 ``SimConfig.ideal_camera``): motion blur over the exposure from the trajectory's poses
@@ -152,16 +153,26 @@ def sub_exposure_poses(traj, cam_t_ns: np.ndarray, T_BS: np.ndarray, exposure_s:
 
 def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
                   calibs: dict[str, CameraCalibration], scene_seed: int, writer: EurocWriter,
-                  show_progress: bool, camera_seed: int = 0
+                  show_progress: bool, camera_seed: int = 0, *,
+                  cam_t_ns: np.ndarray | None = None
                   ) -> tuple[dict[str, Any], dict[str, float]]:
     """Render both cameras at the frame times and queue frames, depth and labels to
     ``writer``; ``camera_seed`` seeds the sensor noise. Returns the scene/counts description
     (and the camera effects applied) and the stage timings (``compile``, ``render``,
-    ``write_wait``)."""
+    ``write_wait``).
+
+    ``cam_t_ns``: (N,) int64 increasing frame timestamps within ``imu_t_ns``' span (a real
+    recording's camera clock, :mod:`uavcal_jax.sim.hybrid`); default
+    :func:`frame_times` of ``imu_t_ns``."""
 
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
-    cam_t_ns = frame_times(imu_t_ns, config)
+    if cam_t_ns is None:
+        cam_t_ns = frame_times(imu_t_ns, config)
+    cam_t_ns = np.asarray(cam_t_ns, dtype=np.int64)
+    if cam_t_ns.ndim != 1 or cam_t_ns.size == 0 or np.any(np.diff(cam_t_ns) <= 0) \
+            or cam_t_ns[0] < imu_t_ns[0] or cam_t_ns[-1] > imu_t_ns[-1]:
+        raise ValueError("cam_t_ns must be increasing frame times within the IMU's span")
     n = cam_t_ns.shape[0]
     t_rel = (cam_t_ns - int(imu_t_ns[0])) * 1e-9  # scene clock: seconds since the first sample
     T_WB = body_poses(traj, cam_t_ns)
