@@ -76,3 +76,21 @@ def xla_cache(tmp_path_factory):
     yield
     jax.config.update("jax_compilation_cache_dir", None)
     cc.reset_cache()
+
+
+#: Seconds the heaviest modules take on CI (2 cores, two workers; measured with
+#: ``PYTEST_ADDOPTS=--junitxml=...``). :func:`pytest_collection_modifyitems` runs them first:
+#: with ``--dist loadfile --no-loadscope-reorder`` the workers take whole modules in this
+#: order, longest first, so the two finish together instead of one waiting on a long module
+#: that came last (xdist's default order is by test count, which puts these last).
+MODULE_SECONDS = {
+    "test_cli_calib.py": 300, "test_cli_detect.py": 250, "test_detect_train.py": 200,
+    "test_vio_flight.py": 160, "test_cli_simulate.py": 150, "test_vio_estimator.py": 120,
+    "test_pipeline_offsets.py": 150, "test_vio_implicit.py": 80, "test_calib_train.py": 60,
+    "test_visual_rotation.py": 60, "test_calib_loop.py": 60, "test_sim_hybrid.py": 30,
+}
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Longest modules first (:data:`MODULE_SECONDS`); the order inside a module is kept."""
+    items.sort(key=lambda item: -MODULE_SECONDS.get(item.path.name, 0))

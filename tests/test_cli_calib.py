@@ -29,12 +29,16 @@ from uavcal_jax.calib.config import (
 from uavcal_jax.calib.data import gather, load_windows
 from uavcal_jax.calib.loop import read_run_config, restore_run
 from uavcal_jax.calib.presets import PRESETS
+from uavcal_jax.calib.pretrained import default_weights
 from uavcal_jax.calib.train import eval_step_seeds
 from uavcal_jax.cli import build_parser, main
 from uavcal_jax.commands.calib import train_configs
+from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.offset_json import read_offset_json
+from uavcal_jax.data.true_offset import true_offset
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataRepairWarning
+from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD
 from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.simulate import simulate
 
@@ -68,9 +72,9 @@ def test_parser_defaults_are_the_dataclass_defaults():
                   "seeds": (TrainConfig().seeds, None), "epochs": (TrainConfig().epochs, None),
                   "set": ([], None), "preset": ("paper", tuple(PRESETS))},
         "eval": {"data": (None, None), "offsets": (None, None), "set": ([], None)},
-        "predict": {"checkpoint": (None, None), "kind": ("best", KINDS), "inject": (None, None),
-                    "plot": (None, None), "frame_dtype": (None, FRAME_ENCODER_DTYPES),
-                    "set": ([], None)},
+        "predict": {"method": (DEFAULT_METHOD, None), "checkpoint": (None, None),
+                    "kind": (None, KINDS), "inject": (None, None), "plot": (None, None),
+                    "frame_dtype": (None, FRAME_ENCODER_DTYPES), "set": ([], None)},
     }
     free = {"help", "data", "out", "run", "resume", "stop_after", "json", "func", "sequence"}
     parser = build_parser()
@@ -131,10 +135,9 @@ def test_unknown_set_key_is_exit_2_naming_it(seqs, tmp_path, capsys, key):
 def test_unknown_set_key_of_eval_and_predict_is_exit_2_naming_it(seqs, tmp_path, capsys,
                                                                   action):
     # the shipped weights' folder is a run folder: eval and predict read its config first
-    from uavcal_jax.calib.pretrained import default_weights
 
     argv = (["calib", "eval", str(default_weights())] if action == "eval" else
-            ["calib", "predict", "--sequence", str(seqs / "seq0")])
+            ["calib", "predict", "--method", "transformer", "--sequence", str(seqs / "seq0")])
     assert main([*argv, "--set", "window.nope=1"]) == 2
     _one_line(capsys, "'window.nope'")
 
@@ -266,11 +269,12 @@ def _check_predict(full, seqs, tmp_path, capsys):
     (seq / "sim_config.json").write_text(json.dumps(record))
     out, png = tmp_path / "offsets.json", tmp_path / "offsets.png"
     trial = full / "trial_00"
-    assert main(["calib", "predict", "--checkpoint", str(trial), "--sequence", str(seq),
-                 "--inject", ",".join(map(str, inject)), "--out", str(out), "--plot", str(png),
-                 "--json"]) == 0
+    assert main(["calib", "predict", "--method", "transformer", "--checkpoint", str(trial),
+                 "--sequence", str(seq), "--inject", ",".join(map(str, inject)), "--out",
+                 str(out), "--plot", str(png), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["windows"] == 5 and res["seeds"] == 2
+    assert res["method"] == "transformer" and res["label"] == "injected"  # the run's label
 
     # reference: the training code's eval step (full model on gathered windows, K seeds)
     window = WindowConfig(duration=2, size=(64, 36))
@@ -285,24 +289,34 @@ def _check_predict(full, seqs, tmp_path, capsys):
     np.testing.assert_allclose(res["error"], np.asarray(res["offset"]) - res["true"])
     np.testing.assert_allclose(read_offset_json(out), res["offset"])
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the estimate never reads the ground truth: the same without its folder
+    blind = tmp_path / "blind"
+    shutil.copytree(seq, blind)
+    shutil.rmtree(blind / "mav0" / "state_groundtruth_estimate0")
+    assert main(["calib", "predict", "--method", "transformer", "--checkpoint", str(trial),
+                 "--sequence", str(blind), "--inject", ",".join(map(str, inject)),
+                 "--json"]) == 0
+    np.testing.assert_array_equal(json.loads(capsys.readouterr().out)["per_window"],
+                                  res["per_window"])
     assert res["frame_encoder_dtype"] == "float32"
     record = json.loads((tmp_path / "offsets.config.json").read_text())
     assert res["config"] == str(tmp_path / "offsets.config.json")
     assert record["model"]["d_model"] == 16 and record["command"]["checkpoint"] == str(trial)
 
     # the same checkpoint with a bfloat16 frame encoder: within its rounding of the reference
-    assert main(["calib", "predict", "--checkpoint", str(trial), "--sequence", str(seq),
-                 "--inject", ",".join(map(str, inject)), "--frame-dtype", "bfloat16",
-                 "--json"]) == 0
+    assert main(["calib", "predict", "--method", "transformer", "--checkpoint", str(trial),
+                 "--sequence", str(seq), "--inject", ",".join(map(str, inject)),
+                 "--frame-dtype", "bfloat16", "--json"]) == 0
     half = json.loads(capsys.readouterr().out)
     assert half["frame_encoder_dtype"] == "bfloat16"
     spread = np.abs(ref - ref.mean(axis=0)).max()
     assert 0 < np.abs(np.asarray(half["per_window"]) - ref).max() < 0.05 * spread
 
-    assert main(["calib", "predict", "--checkpoint", str(full), "--sequence", str(seq)]) == 2
+    assert main(["calib", "predict", "--method", "transformer", "--checkpoint", str(full),
+                 "--sequence", str(seq)]) == 2
     _one_line(capsys, "trial_00")
-    assert main(["calib", "predict", "--checkpoint", str(trial), "--sequence",
-                 str(tmp_path / "nope")]) == 2
+    assert main(["calib", "predict", "--method", "transformer", "--checkpoint", str(trial),
+                 "--sequence", str(tmp_path / "nope")]) == 2
     _one_line(capsys, "nope")
 
 
@@ -311,17 +325,29 @@ def test_predict_real_micro_slice_with_the_shipped_weights(euroc_micro, tmp_path
     # inside the physical range it was trained on; the offsets file feeds `uavcal vio`
     out = tmp_path / "offsets.json"
     with pytest.warns(DataRepairWarning):  # the slice's cam1 lists 4 frames it lacks
-        assert main(["calib", "predict", "--sequence", str(euroc_micro), "--out", str(out),
-                     "--json"]) == 0
+        assert main(["calib", "predict", "--method", "transformer", "--sequence",
+                     str(euroc_micro), "--out", str(out), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert res["windows"] == int((4.7 - 2.0) / 0.5) + 1 and res["true"] is None
+    assert res["windows"] == int((4.7 - 2.0) / 0.5) + 1 and res["injected"] is None
+    # scored under the shipped run's label: no offset is known, so the truth is the ground
+    # truth's mean bias over the windows under `total`, unknown under `injected`
+    label = read_run_config(default_weights()).injection.target
+    assert res["label"] == label
+    with pytest.warns(DataRepairWarning):
+        gt = read_euroc(euroc_micro).ground_truth
+    true = true_offset(label, None, gt, *res["span_ns"])
+    if true is None:
+        assert res["true"] is None
+    else:
+        np.testing.assert_allclose(res["true"], true)
     est = np.asarray(res["offset"])
     assert np.all(np.abs(est[:3]) <= 0.08) and np.all(np.abs(est[3:]) <= 0.16)
     np.testing.assert_allclose(read_offset_json(out), est)
     # a valid --set changes the run and OUT.config.json records it
     with pytest.warns(DataRepairWarning):
-        assert main(["calib", "predict", "--sequence", str(euroc_micro), "--out", str(out),
-                     "--set", "window.stride=1", "--json"]) == 0
+        assert main(["calib", "predict", "--method", "transformer", "--sequence",
+                     str(euroc_micro), "--out", str(out), "--set", "window.stride=1",
+                     "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["windows"] == int((4.7 - 2.0) / 1.0) + 1
     record = json.loads((tmp_path / "offsets.config.json").read_text())
     assert record["window"]["stride"] == 1.0 and record["command"]["set"] == ["window.stride=1"]

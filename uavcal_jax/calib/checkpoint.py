@@ -52,10 +52,13 @@ def _flatten(tree: Any, prefix: str = "") -> dict[str, Any]:
 
 
 def config_differences(saved: Mapping, wanted: Mapping,
-                       ignore: frozenset[str] = RESUMABLE_KEYS) -> list[str]:
+                       ignore: frozenset[str] = RESUMABLE_KEYS,
+                       defaults: Mapping | None = None) -> list[str]:
     """``"key: saved -> wanted"`` for every flattened key whose value differs (missing keys
-    show as ``None``), except those in ``ignore``."""
-    a, b = _flatten(saved), _flatten(wanted)
+    show as ``None``), except those in ``ignore``. A key ``saved`` lacks takes its value in
+    ``defaults`` when given: a setting added after the checkpoint was written, whose default
+    is the behaviour the checkpoint was trained with."""
+    a, b = {**_flatten(defaults or {}), **_flatten(saved)}, _flatten(wanted)
     return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b))
             if k not in ignore and a.get(k) != b.get(k)]
 
@@ -132,14 +135,15 @@ class RunCheckpoints:
         return epoch, dict(out["meta"])
 
     def restore(self, kind: str, abstract_tree: Any, config: Mapping,
-                epoch: int | None = None, ignore: frozenset[str] = RESUMABLE_KEYS
-                ) -> tuple[Any, dict]:
+                epoch: int | None = None, ignore: frozenset[str] = RESUMABLE_KEYS,
+                defaults: Mapping | None = None) -> tuple[Any, dict]:
         """``(tree, meta)`` of a saved step into the structure of ``abstract_tree`` (arrays
         or ``jax.ShapeDtypeStruct``), after checking that it was written with the format
         version and configuration ``config`` (a dict in the layout of
         :class:`~uavcal_jax.calib.config.CalibRunConfig`; saved configurations of the older
         layout are read too, :func:`~uavcal_jax.calib.config.run_layout`); the keys in
-        ``ignore`` may differ.
+        ``ignore`` may differ; keys the saved configuration lacks take their value in
+        ``defaults`` (:func:`config_differences`).
 
         Raises:
             DataError: no checkpoint, another format version, another configuration, or a
@@ -150,7 +154,7 @@ class RunCheckpoints:
         if version != FORMAT_VERSION:
             raise DataError(f"{kind} checkpoint {epoch} has format version {version}, this "
                             f"version reads {FORMAT_VERSION}", self.run_dir)
-        diff = config_differences(run_layout(meta.get("config", {})), config, ignore)
+        diff = config_differences(run_layout(meta.get("config", {})), config, ignore, defaults)
         if diff:
             raise DataError(f"{kind} checkpoint {epoch} was written with another configuration "
                             f"({'; '.join(diff)})", self.run_dir)

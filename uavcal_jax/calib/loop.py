@@ -133,8 +133,8 @@ def mean_offset_baseline(state: CalibState, seeds: int) -> jax.Array:
 
 def _init_state(config: CalibConfig, parts: list[Windows], stats: ImuStats, seeds: int,
                 abstract: bool = False):
-    sample = gather(parts, np.arange(1), config.model, config.injection.single_sensor,
-                    label=config.injection.target)
+    # the label is not part of the state's shapes: a recording without ground truth restores
+    sample = gather(parts, np.arange(1), config.model, config.injection.single_sensor)
     keys = jax.random.split(jax.random.fold_in(_root(config), _INIT), seeds)
     if not abstract:
         return (create_train_state(config, keys[0], sample, stats) if seeds == 1 else
@@ -258,7 +258,7 @@ def _restore(run_dir: str | Path, parts: list[Windows], kind: str,
                 "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
     with RunCheckpoints(run_dir, keep=run.loop.keep, read_only=True) as ckpt:
         tree, meta = ckpt.restore(kind, abstract, resolved_config(run, parts),
-                                  ignore=INFERENCE_KEYS)
+                                  ignore=INFERENCE_KEYS, defaults=to_dict(CalibRunConfig()))
     return tree, meta, seeds
 
 
@@ -363,7 +363,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
         if resume and ckpt.latest() is not None:
             abstract = {"state": _init_state(config, train, stats, seeds, abstract=True),
                         "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
-            tree, meta = ckpt.restore("last", abstract, resolved)
+            tree, meta = ckpt.restore("last", abstract, resolved,
+                                      defaults=to_dict(CalibRunConfig()))
             state = tree["state"]
             root = jax.random.wrap_key_data(tree["key"])
             rec = meta["early_stopping"]

@@ -7,9 +7,11 @@ overlapping windows), predicts every window's offset, and summarises them by the
 windows (robust to the few windows a fast manoeuvre or a dark stretch throws off). A run of
 ``K`` vmapped seeds is an ensemble: each window's estimate is the mean of the seeds'.
 
-:func:`predict_recording` does it for a run folder and a recording; the offset a simulated
-recording carries (``sim_config.json``'s ``config.imu_offset``, written by ``uavcal simulate
---imu-offset``, :func:`uavcal_jax.data.sim_config.recorded_imu_offset`) is its true offset.
+:func:`predict_on_sequence` does it for a run folder and a
+:class:`~uavcal_jax.data.sequence.Sequence`; :func:`predict_recording` for a run folder and a
+recording's folder, where the offset a simulated recording carries (``sim_config.json``'s
+``config.imu_offset``, written by ``uavcal simulate --imu-offset``,
+:func:`uavcal_jax.data.sim_config.recorded_imu_offset`) is its true offset.
 """
 
 from __future__ import annotations
@@ -23,17 +25,19 @@ import numpy as np
 
 from uavcal_jax.calib.batch import frames_to_model, model_imu
 from uavcal_jax.calib.config import CalibRunConfig
-from uavcal_jax.calib.data import load_windows
+from uavcal_jax.calib.data import Windows, find_sequences, mask_black_frames
 from uavcal_jax.calib.inference import encode_frames, predict_windows
 from uavcal_jax.calib.inject import inject
 from uavcal_jax.calib.loop import read_run_config, restore_run
 from uavcal_jax.calib.train import CalibState
+from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.data.sim_config import recorded_imu_offset
-from uavcal_jax.data.windows import WindowSet
+from uavcal_jax.data.windows import WindowSet, make_windows
 from uavcal_jax.errors import DataError
 
 __all__ = ["SequencePrediction", "channel_names", "expand_to_six", "model_channels",
-           "predict_recording", "predict_sequence"]
+           "predict_on_sequence", "predict_recording", "predict_sequence"]
 
 GYRO_CHANNELS = ("gx", "gy", "gz")
 ACCEL_CHANNELS = ("ax", "ay", "az")
@@ -51,6 +55,7 @@ class SequencePrediction(NamedTuple):
         start_s: ``(W,)`` window start times, seconds since the first frame.
         median: ``(C,)`` the median of ``per_window`` over windows: the sequence's estimate.
         channels: the names of the ``C`` channels.
+        start_ns: ``(W,)`` int64 window start times, ns (the recording's clock).
     """
 
     per_window: np.ndarray
@@ -58,6 +63,7 @@ class SequencePrediction(NamedTuple):
     start_s: np.ndarray
     median: np.ndarray
     channels: tuple[str, ...]
+    start_ns: np.ndarray | None = None
 
 
 def channel_names(channels: int, sensor: str) -> tuple[str, ...]:
@@ -130,37 +136,71 @@ def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
     per_window = per_seed_arr.mean(axis=0)
     start_s = (windows.start_ns - windows.frame_t_ns[0]) * 1e-9
     return SequencePrediction(per_window, per_seed_arr, start_s, np.median(per_window, axis=0),
-                              channel_names(per_window.shape[1], sensor))
+                              channel_names(per_window.shape[1], sensor),
+                              np.asarray(windows.start_ns, np.int64))
+
+
+def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = "best",
+                        run: CalibRunConfig | None = None, inject_offset=None
+                        ) -> tuple[dict, SequencePrediction]:
+    """``(info, prediction)`` of the run folder's ``kind`` checkpoint on ``sequence``, cut into
+    the run's windows (black frames masked, as in training). Reads nothing of the recording
+    but ``sequence`` (its ground truth, when it has one, is not used).
+
+    ``run``: the configuration to predict under (default the run's own,
+    :func:`~uavcal_jax.calib.loop.read_run_config`; a command's ``--set`` may change what a
+    restored model allows, :data:`~uavcal_jax.calib.loop.INFERENCE_KEYS`, e.g.
+    ``model.frame_encoder_dtype``: the frame encoder's operand type, same parameters).
+    ``inject_offset``: ``(6,)`` added to the IMU first (only the model's channels are used).
+    ``info`` (JSON-ready): ``run``, ``kind``, ``seeds``, ``sensor``, ``channels``,
+    ``frame_encoder_dtype``, ``window_s``, ``stride_s``, ``windows``.
+
+    Raises:
+        DataError: not a run folder, a checkpoint of another configuration or version, a
+            sequence shorter than one window.
+    """
+    run = read_run_config(run_dir) if run is None else run
+    window = run.window
+    sensor = run.injection.single_sensor
+    where = sequence.root if sequence.root is not None else sequence.name
+    ws = mask_black_frames(make_windows(sequence, window), where)
+    part = Windows(ws, np.arange(len(ws)), str(where))
+    state, seeds = restore_run(run_dir, [part], kind=kind, run=run)
+    pick = model_channels(run.model.imu_channels, sensor)
+    shift = None if inject_offset is None else np.asarray(inject_offset, np.float64)[pick]
+    prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
+    info = {
+        "run": str(run_dir), "kind": kind, "seeds": seeds, "sensor": sensor,
+        "channels": list(prediction.channels),
+        "frame_encoder_dtype": state.config.model.frame_encoder_dtype,
+        "window_s": window.duration, "stride_s": window.stride,
+        "windows": int(prediction.per_window.shape[0]),
+    }
+    return info, prediction
 
 
 def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = "best",
                       inject_offset=None, run: CalibRunConfig | None = None
                       ) -> tuple[dict, SequencePrediction]:
-    """``(summary, prediction)`` of the run folder's ``kind`` checkpoint on the EuRoC folder
-    ``sequence``, cut into the run's windows (black frames masked, as in training).
-    ``run``: the configuration to predict under (default the run's own,
-    :func:`~uavcal_jax.calib.loop.read_run_config`; a command's ``--set`` may change what a
-    restored model allows, :data:`~uavcal_jax.calib.loop.INFERENCE_KEYS`, e.g.
-    ``model.frame_encoder_dtype``: the frame encoder's operand type, same parameters).
+    """``(summary, prediction)`` of :func:`predict_on_sequence` on the EuRoC folder
+    ``sequence``, with the offset the recording declares scored.
 
     ``inject_offset``: ``(6,)`` added to the recorded IMU first (only the model's channels are
     used). The true offset is known when ``sequence`` is a simulated recording with an
-    offset (``sim_config.json``) and/or ``inject`` is given: then ``summary`` holds it,
-    the ``error`` of the median and its ``rmse``. ``summary`` is JSON-ready.
+    offset (``sim_config.json``) and/or ``inject`` is given: then ``summary`` holds it (the
+    ``injected`` label: the offsets alone), the ``error`` of the median and its ``rmse``.
+    ``summary`` is JSON-ready. ``uavcal calib predict`` scores under the run's own label
+    instead (:mod:`uavcal_jax.pipeline.predict_offset`).
 
     Raises:
         DataError: not a run folder, a checkpoint of another configuration or version, a
             sequence shorter than one window, unreadable data.
     """
     run = read_run_config(run_dir) if run is None else run
-    window = run.window
-    sensor = run.injection.single_sensor
-    channels = run.model.imu_channels
-    (part,) = load_windows([sequence], window)
-    state, seeds = restore_run(run_dir, [part], kind=kind, run=run)
-    pick = model_channels(channels, sensor)
-    shift = None if inject_offset is None else np.asarray(inject_offset, np.float64)[pick]
-    prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
+    (root,) = find_sequences([sequence])
+    info, prediction = predict_on_sequence(run_dir, read_euroc(root), kind=kind, run=run,
+                                           inject_offset=inject_offset)
+    pick = model_channels(run.model.imu_channels, run.injection.single_sensor)
     recorded = recorded_imu_offset(sequence)
     true = None
     if recorded is not None or inject_offset is not None:
@@ -169,11 +209,7 @@ def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = 
         true = true[pick]
     error = None if true is None else prediction.median - true
     summary = {
-        "run": str(run_dir), "kind": kind, "sequence": str(sequence), "seeds": seeds,
-        "sensor": sensor, "channels": list(prediction.channels),
-        "frame_encoder_dtype": state.config.model.frame_encoder_dtype,
-        "window_s": window.duration, "stride_s": window.stride,
-        "windows": int(prediction.per_window.shape[0]),
+        **info, "sequence": str(sequence),
         "offset": prediction.median.tolist(),
         "per_window_std": prediction.per_window.std(axis=0).tolist(),
         "per_window": prediction.per_window.tolist(),

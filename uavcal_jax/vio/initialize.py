@@ -1,6 +1,6 @@
 """Stereo-inertial initialisation: gravity-aligned attitude from the accelerometer, stereo
 triangulation, the gauge prior on the first keyframe, and the gyroscope bias from visual
-rotations (VINS-Mono's ``solveGyroscopeBias``).
+rotations (VINS-Mono's ``solveGyroscopeBias``, on keyframe or any relative rotations).
 
 Frames: the world frame is gravity-aligned (z up, gravity ``-9.81 z``) with the yaw of the
 first keyframe's body at zero and its origin at the first keyframe (or, after a reset, the
@@ -19,7 +19,9 @@ from uavcal_jax.vio.window import FRAME_DIM, Keyframes, Prior
 __all__ = [
     "gauge_prior",
     "gravity_aligned_rotation",
+    "gyro_bias_from_relative_rotations",
     "gyro_bias_from_rotations",
+    "rotation_residuals",
     "triangulate_stereo",
     "yaw_of",
 ]
@@ -109,13 +111,53 @@ def gauge_prior(frames: Keyframes, n_slots: int, sigma: InitialPrior,
     return Prior(J=jnp.asarray(J), r=jnp.zeros(D), lin=frames, mask=jnp.asarray(True))
 
 
+def rotation_residuals(R_rel: np.ndarray, delta_R: np.ndarray) -> np.ndarray:
+    """(K, 3) rad, ``log(delta_R_k^T R_rel_k)``: how far each visual relative rotation is
+    from the preintegrated one, in the body tangent at the interval's end (right perturbation).
+
+    Args:
+        R_rel: (K, 3, 3) visual relative rotations ``R_k^T R_{k+1}`` (map body vectors at the
+            interval's end to the body frame at its start).
+        delta_R: (K, 3, 3) preintegrated rotations of the same intervals (same convention).
+    """
+    err = np.einsum("kji,kjl->kil", np.asarray(delta_R, np.float64),
+                    np.asarray(R_rel, np.float64))
+    return Rotation.from_matrix(err).as_rotvec().reshape(-1, 3)
+
+
+def gyro_bias_from_relative_rotations(R_rel: np.ndarray, delta_R: np.ndarray,
+                                      d_R_d_bg: np.ndarray, weights: np.ndarray | None = None
+                                      ) -> np.ndarray:
+    """The gyro-bias correction (3,) rad/s that best aligns preintegrated rotations with
+    visual relative rotations, one (weighted) Gauss-Newton step (VINS-Mono
+    ``solveGyroscopeBias`` on relative rotations: the intervals need not be consecutive).
+
+    ``delta_R(bg + d) ~= delta_R exp(d_R_d_bg d)``, so each interval gives
+    ``log(delta_R^T R_rel) ~= d_R_d_bg d`` (:func:`rotation_residuals`); stacked, solved by
+    least squares, row ``k`` weighted by ``weights[k]`` (default 1; 0 drops the interval).
+
+    Args:
+        R_rel: (K, 3, 3) visual relative rotations (body frame at the end to the start).
+        delta_R: (K, 3, 3) preintegrated rotations of the same intervals.
+        d_R_d_bg: (K, 3, 3) their right-perturbation bias Jacobians.
+        weights: (K,) non-negative weights, or ``None``.
+    """
+    e = rotation_residuals(R_rel, delta_R)
+    A = np.asarray(d_R_d_bg, np.float64).reshape(-1, 3, 3)
+    if weights is not None:
+        w = np.sqrt(np.asarray(weights, np.float64).reshape(-1))
+        e, A = e * w[:, None], A * w[:, None, None]
+    d, *_ = np.linalg.lstsq(A.reshape(-1, 3), e.reshape(-1), rcond=None)
+    return d
+
+
 def gyro_bias_from_rotations(R_WB: np.ndarray, delta_R: np.ndarray, d_R_d_bg: np.ndarray
                              ) -> np.ndarray:
     """The gyro-bias correction (3,) rad/s that best aligns preintegrated rotations with the
     keyframes' rotations (VINS-Mono ``solveGyroscopeBias``), one Gauss-Newton step.
 
-    ``delta_R(bg + d) ~= delta_R exp(d_R_d_bg d)``, so each interval ``k -> k + 1`` gives
-    ``log(delta_R^T R_k^T R_{k+1}) ~= d_R_d_bg d``; stacked, solved by least squares.
+    :func:`gyro_bias_from_relative_rotations` on the consecutive keyframes' relative
+    rotations ``R_k^T R_{k+1}``.
 
     Args:
         R_WB: (K + 1, 3, 3) keyframe body-to-world rotations (visual estimates).
@@ -124,8 +166,4 @@ def gyro_bias_from_rotations(R_WB: np.ndarray, delta_R: np.ndarray, d_R_d_bg: np
     """
     R_WB = np.asarray(R_WB, np.float64)
     rel = np.einsum("kji,kjl->kil", R_WB[:-1], R_WB[1:])  # R_k^T R_{k+1}
-    err = np.einsum("kji,kjl->kil", np.asarray(delta_R, np.float64), rel)
-    e = Rotation.from_matrix(err).as_rotvec().reshape(-1)
-    A = np.asarray(d_R_d_bg, np.float64).reshape(-1, 3)
-    d, *_ = np.linalg.lstsq(A, e, rcond=None)
-    return d
+    return gyro_bias_from_relative_rotations(rel, delta_R, d_R_d_bg)

@@ -1,0 +1,207 @@
+"""The offset estimators of ``uavcal_jax.pipeline`` and ``uavcal calib predict --method``.
+
+On a 4 s simulated V2_01 flight (376x240 frames at 10 Hz) carrying a recorded offset, with
+another one injected by ``--inject``: ``vio-bias`` recovers the gyro part of the total constant
+error (offsets plus the simulated IMU's own bias, from the ground truth) to 2e-3 rad/s; the
+estimate is the same with the ground-truth folder and the simulator's record removed;
+estimators are handed no ground truth and the injected IMU, and are scored under their own
+label afterwards; ``visual-ls`` recovers the gyro part from the frames' rotations; bad methods,
+arguments and keys are one line and exit 2.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+import warnings
+
+import numpy as np
+import pytest
+from conftest import shared_path
+
+from uavcal_jax.cli import main
+from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.data.offset_json import read_offset_json
+from uavcal_jax.data.true_offset import sensor_bias
+from uavcal_jax.errors import DataError
+from uavcal_jax.pipeline.offset_estimate import SIX_CHANNELS, OffsetEstimate, OffsetMethod
+from uavcal_jax.pipeline.offset_estimators import METHODS, configure_method
+from uavcal_jax.pipeline.predict_offset import predict_offset
+from uavcal_jax.pipeline.vio_bias import VioBiasOptions, tail_median
+from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.simulate import simulate
+
+#: The offset the simulator writes into the IMU (sim_config.json) and the one --inject adds.
+RECORDED = (0.03, -0.045, 0.02, 0.12, -0.08, 0.1)
+INJECT = (-0.02, 0.015, 0.01, 0.1, 0.0, -0.05)
+#: Gyro error bound, rad/s (measured on this flight: about 3e-4 and 1e-3 at most per axis).
+GYRO_TOLERANCE = 2e-3
+DURATION_S = 4.0
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    trajectory = shared_path("trajectories", "euroc", "V2_01_easy.txt")
+    out = tmp_path_factory.mktemp("offsets") / "flight"
+    simulate(SimConfig(trajectory=str(trajectory), start=5.0, duration=DURATION_S, seed=4,
+                       resolution=(376, 240), camera_rate_hz=10.0, depth=False, targets=False,
+                       imu_offset=RECORDED), out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def cli_run(flight, tmp_path_factory):
+    """``calib predict --method vio-bias --inject ... --out ... --json`` on the flight: its
+    summary and the offsets file."""
+    out = tmp_path_factory.mktemp("cli") / "offsets.json"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        code = main(["calib", "predict", "--sequence", str(flight), "--method", "vio-bias",
+                     "--inject=" + ",".join(map(str, INJECT)), "--out", str(out), "--json"])
+    assert code == 0
+    return json.loads(stdout.getvalue()), out
+
+
+def _ground_truth(root):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_euroc(root).ground_truth
+
+
+def test_vio_bias_recovers_the_injected_gyro_offset(flight, cli_run):
+    res, out = cli_run
+    for key in ("method", "label", "channels", "offset", "per_window", "per_window_std",
+                "window_start_s", "span_ns", "injected", "recorded", "true", "error", "rmse",
+                "items", "frames", "frames_used", "resets", "out", "config"):
+        assert key in res, key
+    assert res["method"] == "vio-bias" and res["label"] == "total"
+    assert res["channels"] == list(SIX_CHANNELS)
+    np.testing.assert_allclose(res["recorded"], RECORDED)
+    np.testing.assert_allclose(res["injected"], INJECT)
+    # the truth: both offsets plus the simulated IMU's own bias over the span used
+    bias = sensor_bias(_ground_truth(flight), *res["span_ns"])
+    true = np.add(RECORDED, INJECT) + bias
+    np.testing.assert_allclose(res["true"], true, atol=1e-12)
+    offset = np.asarray(res["offset"])
+    assert np.all(np.abs(offset[:3] - true[:3]) < GYRO_TOLERANCE), offset[:3] - true[:3]
+    np.testing.assert_allclose(res["error"], offset - true, atol=1e-12)
+    # the median of the tracked frames of the last two thirds of the flight
+    per_frame = np.asarray(res["per_window"])
+    assert per_frame.shape == (res["items"], 6) and res["items"] == res["frames_used"]
+    assert res["frames_used"] >= 0.5 * res["frames"] and res["resets"] == 0
+    np.testing.assert_allclose(offset, np.median(per_frame, axis=0))
+    assert min(res["window_start_s"]) >= DURATION_S / 3 - 0.2
+    # the offsets file feeds `uavcal vio --offsets`; the settings went beside it
+    np.testing.assert_allclose(read_offset_json(out), offset)
+    record = json.loads(out.with_suffix(".config.json").read_text())
+    assert record["tail_fraction"] == pytest.approx(2 / 3)
+    assert record["vio"]["cost"]["focal_px"] > 0  # resolved against the recording's camera
+    assert record["command"]["method"] == "vio-bias"
+
+
+def test_vio_bias_is_the_same_without_ground_truth(flight, cli_run, tmp_path):
+    res, _ = cli_run
+    blind = tmp_path / "blind"
+    shutil.copytree(flight, blind)
+    shutil.rmtree(blind / "mav0" / "state_groundtruth_estimate0")
+    (blind / "sim_config.json").unlink()
+    summary, estimate = predict_offset(blind, "vio-bias", inject=INJECT)
+    np.testing.assert_array_equal(summary["per_window"], res["per_window"])
+    np.testing.assert_array_equal(summary["offset"], res["offset"])
+    np.testing.assert_array_equal(estimate.offset, res["offset"])
+    assert summary["true"] is None and summary["recorded"] is None
+
+
+def test_visual_ls_recovers_the_gyro_and_leaves_the_accel_alone(flight, tmp_path):
+    """``visual-ls`` on the same flight: the gyro's total constant error from the frames'
+    rotations, nothing subtracted from the accelerometer; the rotations are cached beside the
+    recording and reused (the estimate does not change with ``--inject``: the rotations are
+    the camera's)."""
+    copy = tmp_path / "flight"
+    shutil.copytree(flight, copy)
+    summary, estimate = predict_offset(copy, "visual-ls", inject=INJECT)
+    assert summary["method"] == "visual-ls" and summary["label"] == "total"
+    assert summary["channels"] == ["gx", "gy", "gz"] and estimate.offset[3:].tolist() == [0] * 3
+    bias = sensor_bias(_ground_truth(flight), *summary["span_ns"])
+    true = np.add(RECORDED, INJECT)[:3] + bias[:3]
+    np.testing.assert_allclose(summary["true"], true, atol=1e-12)
+    assert np.all(np.abs(np.asarray(summary["offset"]) - true) < GYRO_TOLERANCE)
+    assert len(list(copy.glob("visual_rotations.*.npz"))) == 1
+    again, _ = predict_offset(copy, "visual-ls")
+    np.testing.assert_allclose(np.asarray(again["offset"]) - np.asarray(summary["offset"]),
+                               -np.asarray(INJECT[:3]), atol=2e-4)
+
+
+def _spy_method(seen: list, label: str) -> OffsetMethod:
+    """A method that records the sequence it is given and returns its IMU's mean."""
+
+    def estimate(sequence, options, *, progress=False):
+        seen.append(sequence)
+        mean = np.concatenate([sequence.imu.gyro.mean(0), sequence.imu.accel.mean(0)])
+        t = sequence.imu.t_ns
+        return OffsetEstimate(mean, SIX_CHANNELS[:3], mean[:3], mean[None, :3],
+                              np.zeros(1), "frame", (int(t[0]), int(t[-1])), label, options)
+
+    return OffsetMethod("spy", "records its input", lambda overrides: None, estimate)
+
+
+@pytest.mark.parametrize("label", ["injected", "total"])
+def test_estimators_get_no_ground_truth_and_are_scored_under_their_label(flight, monkeypatch,
+                                                                          label):
+    seen: list = []
+    monkeypatch.setitem(METHODS, "spy", _spy_method(seen, label))
+    summary, estimate = predict_offset(flight, "spy", inject=INJECT)
+    (given,) = seen
+    assert given.ground_truth is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        recorded = read_euroc(flight)
+    np.testing.assert_allclose(given.imu.gyro, recorded.imu.gyro + np.asarray(INJECT[:3]),
+                               atol=1e-12)
+    np.testing.assert_allclose(given.imu.accel, recorded.imu.accel + np.asarray(INJECT[3:]),
+                               atol=1e-12)
+    true = np.add(RECORDED, INJECT)
+    if label == "total":
+        true = true + sensor_bias(recorded.ground_truth, *estimate.span_ns)
+    assert summary["label"] == label and summary["channels"] == ["gx", "gy", "gz"]
+    np.testing.assert_allclose(summary["true"], true[:3], atol=1e-12)
+    np.testing.assert_allclose(summary["error"], estimate.median - true[:3], atol=1e-12)
+
+
+def test_tail_median_keeps_good_items_of_the_flights_end():
+    t_ns = np.arange(10, dtype=np.int64) * 1_000_000_000  # 0..9 s
+    values = np.arange(20.0).reshape(10, 2)
+    values[8] = np.nan
+    good = np.ones(10, bool)
+    good[6] = False
+    used, median = tail_median(t_ns, values, good, 0.5)  # from 4.5 s on
+    np.testing.assert_array_equal(used, [5, 7, 9])
+    np.testing.assert_allclose(median, np.median(values[[5, 7, 9]], axis=0))
+    used, median = tail_median(t_ns, values, np.zeros(10, bool), 1.0)
+    assert used.size == 0 and np.all(np.isnan(median))
+
+
+def test_options_reach_the_vio_config_and_refuse_what_a_method_does_not_take():
+    opts = configure_method("vio-bias", ["tail_fraction=0.5", "vio.solver.max_iterations=4"])
+    assert isinstance(opts, VioBiasOptions)
+    assert opts.tail_fraction == 0.5 and opts.vio.solver.max_iterations == 4
+    with pytest.raises(DataError, match="tail_fraction"):
+        configure_method("vio-bias", ["tail_fraction=0"])
+    with pytest.raises(DataError, match="'checkpoint'.*transformer"):
+        configure_method("vio-bias", checkpoint="runs/x")
+
+
+@pytest.mark.parametrize("argv, needles", [
+    (["--method", "nope"], ["'nope'", "vio-bias", "transformer"]),
+    (["--checkpoint", "runs/x"], ["'checkpoint'", "transformer"]),
+    (["--set", "vio.nope=1"], ["'vio.nope'"]),
+])
+def test_bad_method_argument_or_key_is_one_line_exit_2(tmp_path, capsys, argv, needles):
+    # the options are checked before the recording is read: any folder will do
+    assert main(["calib", "predict", "--sequence", str(tmp_path), *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    for needle in needles:
+        assert needle in err[0], err[0]

@@ -1,0 +1,21 @@
+"""The composition layer: what needs several task packages (``calib``, ``vio``, ``detect``,
+``track``) at once. The only package that imports more than one of them; the commands and
+the experiments call it, no task package imports it (the import-linter contracts in
+``pyproject.toml``).
+
+Modules, one job each:
+
+* :mod:`~uavcal_jax.pipeline.offset_estimate`: :class:`OffsetEstimate` (what every IMU offset
+  estimator returns) and :class:`OffsetMethod` (one estimator, as the registry holds it).
+* :mod:`~uavcal_jax.pipeline.offset_estimators`: the registry of estimators by name
+  (:data:`METHODS`, :func:`register_method`, :func:`get_method`, :func:`configure_method`).
+* :mod:`~uavcal_jax.pipeline.vio_bias`: ``vio-bias``, the median of the stereo VIO's bias
+  states over the end of the flight.
+* :mod:`~uavcal_jax.pipeline.transformer_offset`: ``transformer``, the trained calibrator of
+  Avola et al. (``uavcal_jax.calib``).
+* :mod:`~uavcal_jax.pipeline.predict_offset`: a recording's offset by any method, scored
+  against the truth afterwards (``uavcal calib predict``).
+
+No estimator sees the ground truth: :func:`~uavcal_jax.pipeline.predict_offset.predict_offset`
+hands it the recording without one, and scores the estimate only once it is made.
+"""

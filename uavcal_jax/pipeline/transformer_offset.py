@@ -1,0 +1,110 @@
+"""``transformer``: the IMU offset from a trained calibrator (Avola et al. 2023;
+:mod:`uavcal_jax.calib`).
+
+The recording is cut into the run's windows, every window gets the model's estimate, and the
+median over windows is the recording's (:func:`uavcal_jax.calib.predict.predict_on_sequence`).
+What it estimates is what it was trained to predict: the run's label in force
+(:attr:`uavcal_jax.calib.config.InjectionConfig.target`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from uavcal_jax.calib.config import CalibRunConfig
+from uavcal_jax.calib.loop import read_run_config
+from uavcal_jax.calib.predict import expand_to_six, predict_on_sequence
+from uavcal_jax.calib.presets import resolve_configs
+from uavcal_jax.calib.pretrained import default_weights
+from uavcal_jax.calib.trials import TRIAL_FORMAT, trial_folders
+from uavcal_jax.data.sequence import Sequence
+from uavcal_jax.errors import DataError
+from uavcal_jax.pipeline.offset_estimate import OffsetEstimate, OffsetMethod, check_sequence
+
+__all__ = ["METHOD", "TransformerOptions", "configure", "estimate", "run_folder"]
+
+
+@dataclass(frozen=True)
+class TransformerOptions:
+    """The ``transformer`` method's options.
+
+    Attributes:
+        run_dir: the run folder (``calib train``'s output, or a loo/kfold trial folder).
+        kind: its checkpoint: ``"best"`` or ``"last"``.
+        run: the configuration to predict under: the run's own, with ``--set`` of what a
+            restored model may change (:data:`uavcal_jax.calib.loop.INFERENCE_KEYS`).
+    """
+
+    run_dir: Path
+    kind: str
+    run: CalibRunConfig
+
+
+def run_folder(checkpoint: str | Path | None) -> Path:
+    """The run folder to predict with: ``checkpoint``, or the shipped weights when ``None``
+    (:func:`uavcal_jax.calib.pretrained.default_weights`).
+
+    Raises:
+        DataError: ``checkpoint`` holds one model per trial (a loo/kfold run), not one.
+    """
+    if checkpoint is None:
+        return default_weights()
+    run = Path(checkpoint)
+    if not (run / "config.json").is_file() and trial_folders(run):
+        raise DataError("a loo/kfold run holds one model per trial: give one, e.g. "
+                        f"{run / TRIAL_FORMAT.format(0)}", run)
+    return run
+
+
+def configure(overrides: Iterable[str] = (), *, checkpoint: str | Path | None = None,
+              kind: str | None = None, frame_dtype: str | None = None) -> TransformerOptions:
+    """:class:`TransformerOptions` of the run folder ``checkpoint`` (default the shipped
+    weights), its checkpoint ``kind`` (default ``"best"``), with ``overrides`` and
+    ``frame_dtype`` (``model.frame_encoder_dtype``; ``None``: the run's) applied to the run's
+    configuration.
+
+    Raises:
+        DataError: not a run folder; an unknown key or one a restored model may not change
+            (named).
+    """
+    run_dir = run_folder(checkpoint)
+    run = resolve_configs(list(overrides), preset=read_run_config(run_dir),
+                          arguments={"model.frame_encoder_dtype": frame_dtype})
+    return TransformerOptions(run_dir, "best" if kind is None else kind, run)
+
+
+def estimate(sequence: Sequence, options: TransformerOptions, *,
+             progress: bool = False) -> OffsetEstimate:
+    """The ``transformer`` estimate of ``sequence`` (no ground truth). ``info`` holds the
+    run, checkpoint kind, seeds, sensor, frame encoder dtype and the windows' geometry and
+    count (:func:`~uavcal_jax.calib.predict.predict_on_sequence`). ``progress`` is unused:
+    the prediction is seconds.
+
+    Raises:
+        DataError: see :func:`~uavcal_jax.calib.predict.predict_on_sequence`.
+    """
+    check_sequence(sequence)
+    run = options.run
+    info, prediction = predict_on_sequence(options.run_dir, sequence, kind=options.kind,
+                                           run=run)
+    duration_ns = int(round(run.window.duration * 1e9))
+    start_ns = prediction.start_ns
+    return OffsetEstimate(
+        offset=expand_to_six(prediction.median, run.injection.single_sensor),
+        channels=tuple(prediction.channels), median=np.asarray(prediction.median, np.float64),
+        per_item=np.asarray(prediction.per_window, np.float64),
+        item_t_s=np.asarray(prediction.start_s, np.float64), item="window",
+        span_ns=(int(start_ns[0]), int(start_ns[-1]) + duration_ns - 1),
+        label=run.injection.target, settings=run, info=info)
+
+
+METHOD = OffsetMethod(
+    name="transformer", configure=configure, estimate=estimate,
+    arguments=("checkpoint", "kind", "frame_dtype"),
+    summary="a trained calibrator (--checkpoint RUN, default the shipped small weights): "
+            "median over its windows; --set reaches the run's configuration (what a restored "
+            "model may change)")
