@@ -218,23 +218,31 @@ def test_demo_json_keep(capsys, tmp_path):
     assert summary["warnings"] == []
     assert (keep / "mav0" / "cam0" / "data.csv").is_file()
     assert (keep / "sim_config.json").is_file()
-    # The calibrate step's least squares (against the ground truth) recovers the offset
-    # written into the IMU (sim_config.json records it) to within the noise of 3 s of
-    # ADIS16448 samples.
+    # The calibrate step: the truth is the offset written into the IMU (sim_config.json
+    # records it) plus the simulated sensor's own bias (the ground truth's bias columns)
     calib = result["calibrate"]
     recorded = json.loads((keep / "sim_config.json").read_text())["config"]["imu_offset"]
-    np.testing.assert_allclose(calib["true"], recorded)
-    assert any(abs(v) > 0 for v in recorded)
-    np.testing.assert_allclose(calib["least_squares"][:3], recorded[:3], atol=2e-3)  # rad/s
-    np.testing.assert_allclose(calib["least_squares"][3:], recorded[3:], atol=2e-2)  # m/s^2
-    # the transformer with the shipped weights (trained on physical-range offsets, per-axis
-    # |gyro| <= 0.08 rad/s, |accel| <= 0.16 m/s^2) on windows it never saw: one estimate per
-    # channel inside that range (an untrained or mis-restored model gives values of order 1)
-    est = np.asarray(calib["transformer"])
-    assert calib["windows"] == 3 and np.all(np.isfinite(est))
+    np.testing.assert_allclose(calib["injected"], recorded)
+    gt = read_euroc(keep).ground_truth
+    bias = np.concatenate([gt.bias_gyro, gt.bias_accel], axis=1).mean(axis=0)
+    np.testing.assert_allclose(calib["true"], np.add(recorded, bias), atol=1e-12)
+    np.testing.assert_allclose(calib["no_correction_error"], -np.asarray(calib["true"]))
+    methods = calib["methods"]
+    assert list(methods) == ["vio-bias", "visual-ls", "transformer"]
+    for m in methods.values():
+        np.testing.assert_allclose(np.subtract(m["offset"], calib["true"]), m["error"])
+    # blind estimates (no ground truth read) of the gyro within 5e-3 rad/s per axis
+    for name in ("vio-bias", "visual-ls"):
+        assert np.all(np.abs(methods[name]["error"][:3]) < 5e-3), (name, methods[name])
+    # the VIO's accel bias: closer to the truth than no correction, as a vector
+    vio_accel = np.linalg.norm(methods["vio-bias"]["error"][3:])
+    assert vio_accel < 0.5 * np.linalg.norm(calib["true"][3:])
+    # the shipped transformer (trained on physical-range offsets, per-axis |gyro| <= 0.08
+    # rad/s, |accel| <= 0.16 m/s^2): one estimate per channel inside that range (an
+    # untrained or mis-restored model gives values of order 1)
+    est = np.asarray(methods["transformer"]["offset"])
     assert np.all(np.abs(est[:3]) <= 0.08) and np.all(np.abs(est[3:]) <= 0.16), est
-    np.testing.assert_allclose(est - calib["true"], calib["transformer_error"])
-    # The VIO step tracks the whole flight with that offset removed, against the ground truth
+    # The VIO step tracks the whole flight with vio-bias's estimate removed
     vio = result["vio"]
     assert vio["poses"] == vio["frames"] == 61 and vio["nan_poses"] == 0
     assert vio["ate_m"]["rmse"] < 0.05
