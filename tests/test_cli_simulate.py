@@ -33,7 +33,8 @@ def test_help_documents_every_option(capsys):
                    "--imu-offset",
                    "--no-frames", "--no-depth", "--no-targets", "--ideal-camera",
                    "--exposure", "--gain", "--no-sensor-noise", "--blur-samples", "--batch",
-                   "--workers", "--json"):
+                   "--workers", "--body-frame", "--camera-pitch", "--follow-targets",
+                   "--imu-from", "--json"):
         assert option in out, option
     assert "first timestamp" in out  # --start is relative to the file's first timestamp
     code, out, _ = _run(capsys, "demo", "--help")
@@ -54,7 +55,8 @@ OPTION_FIELDS = {
     "frames": "frames", "depth": "depth",
     "targets": "targets", "ideal_camera": "ideal_camera", "exposure": "exposure_ms",
     "gain": "gain", "sensor_noise": "sensor_noise", "blur_samples": "blur_samples",
-    "batch": "batch_size", "workers": "png_workers",
+    "batch": "batch_size", "workers": "png_workers", "body_frame": "body_frame",
+    "camera_pitch": "camera_pitch_deg", "follow_targets": "follow_targets",
 }  # fmt: skip
 
 

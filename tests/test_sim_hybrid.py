@@ -189,3 +189,20 @@ def test_missing_imu_or_ground_truth_is_a_data_error(real, tmp_path):
         simulate_hybrid(real.root, tmp_path / "out", SimConfig(frames=False), start=140.0,
                         duration=10.0, progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_cli_imu_from_writes_the_real_imu(real, tmp_path, capsys):
+    from uavcal_jax.cli import main
+
+    out = tmp_path / "cli"
+    assert main(["simulate", "--imu-from", str(shared_path("euroc_v101_micro")), "--start", "1",
+                 "--duration", "0.5", "--resolution", "64x40", "--no-depth", "--no-targets",
+                 "--ideal-camera", "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["imu"] == 101 and summary["imu_offset"] is None
+    written = _read_quietly(out).imu
+    first = np.searchsorted(real.imu.t_ns, written.t_ns[0])
+    np.testing.assert_array_equal(written.gyro, real.imu.gyro[first:first + 101])
+    assert main(["simulate", "--imu-from", str(out), "--trajectory", "x.txt", "--out",
+                 str(tmp_path / "both")]) == 2
+    assert "--imu-from" in capsys.readouterr().err

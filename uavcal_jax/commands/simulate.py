@@ -20,7 +20,7 @@ from uavcal_jax.config import apply_overrides, valid_keys
 from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.data.euroc_rig import EUROC_RESOLUTION
 from uavcal_jax.errors import DataError, DataRepairWarning, FlightLimitWarning
-from uavcal_jax.sim.config import COLORS, SimConfig
+from uavcal_jax.sim.config import BODY_FRAMES, COLORS, SimConfig
 
 #: The option defaults, from :class:`SimConfig` (one place for each).
 _D = SimConfig()
@@ -53,6 +53,8 @@ examples:
   uavcal simulate --out out/imu_only --no-frames --no-imu-noise --duration 60
   uavcal simulate --out out/miscal --imu-offset=-0.02,0.01,0.03,0.2,-0.1,0.15
   uavcal simulate --out out/fast --set imu_rate_hz=400 blur_samples=1
+  uavcal simulate --out out/fpv --trajectory indoor_forward_3.txt --body-frame flu \\
+      --camera-pitch 30 --follow-targets 1 --duration 8
 
 --set keys (SimConfig fields):
 {keys}"""
@@ -74,6 +76,16 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--duration", type=positive, default=_D.duration, metavar="S",
                    help=f"seconds of flight to simulate [default: {_D.duration:g}]; with "
                         "--trajectory, --start + --duration must lie within the file")
+    g.add_argument("--body-frame", choices=BODY_FRAMES, default=_D.body_frame,
+                   help="the trajectory file's body convention: 'euroc' (EuRoC's IMU frame, x "
+                        "up, z forward) or 'flu' (x forward, y left, z up: UZH-FPV, most "
+                        "motion-capture rigs; EuRoC's IMU and cameras are mounted on it as on "
+                        "EuRoC's MAV) [default: %(default)s]")
+    g.add_argument("--follow-targets", type=int, default=_D.follow_targets, metavar="N",
+                   help="place N moving targets (car, person, alternating) on the floor where "
+                        "cam0 looks along the flight; each moves, stops and turns and stays in "
+                        "view most of the time; they are track ids 0..N-1 of the labels, "
+                        "their world tracks in target0/track.csv [default: %(default)s]")
     g.add_argument("--seed", type=int, default=_D.seed,
                    help="seeds the procedural flight, the IMU noise and biases, and the scene "
                         f"[default: {_D.seed}]")
@@ -84,6 +96,11 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
                         "field of view) [default: {}x{}]".format(*EUROC_RESOLUTION, w, h))
     g.add_argument("--color", choices=COLORS, default=_D.color,
                    help=f"8-bit gray frames (like EuRoC) or RGB [default: {_D.color}]")
+    g.add_argument("--camera-pitch", type=float, default=_D.camera_pitch_deg, metavar="DEG",
+                   help="pitch of the stereo rig below the drone's forward axis: 0 looks "
+                        "forward, 45 as UZH-FPV's 45-degree flights, 90 straight down; the "
+                        "cameras' T_BS in sensor.yaml are the pitched ones [default: EuRoC's "
+                        "rig, cam0 19.8 degrees below forward]")
     g.add_argument("--camera-rate", type=positive, default=_D.camera_rate_hz, metavar="HZ",
                    help=f"frame rate of cam0/cam1 [default: {_D.camera_rate_hz:g}]")
     g.add_argument("--imu-rate", type=positive, default=_D.imu_rate_hz, metavar="HZ",
@@ -143,14 +160,18 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         DataError: ``--start`` without ``--trajectory`` or below zero; an unknown ``--set``
             key (named, with the valid ones) or a value that does not parse.
     """
-    if args.start is not None and args.trajectory is None:
-        raise DataError("--start needs --trajectory (a procedural flight has no file clock)")
+    if args.start is not None and args.trajectory is None \
+            and getattr(args, "imu_from", None) is None:
+        raise DataError("--start needs --trajectory or --imu-from (a procedural flight has no "
+                        "file clock)")
     if args.start is not None and args.start < 0:
         raise DataError(f"--start must be >= 0 seconds, got {args.start:g}", args.trajectory)
     config = SimConfig(
         trajectory=args.trajectory,
         start=_D.start if args.start is None else float(args.start),
         duration=float(args.duration),
+        body_frame=args.body_frame,
+        camera_pitch_deg=args.camera_pitch,
         resolution=tuple(args.resolution),
         color=args.color,
         seed=int(args.seed),
@@ -159,6 +180,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         frames=args.frames,
         depth=args.depth,
         targets=args.targets,
+        follow_targets=int(args.follow_targets),
         camera_rate_hz=float(args.camera_rate),
         imu_rate_hz=float(args.imu_rate),
         ideal_camera=bool(args.ideal_camera),
@@ -185,6 +207,13 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace DIR if it holds a previous simulation")
     add_sim_arguments(p)
+    p.add_argument("--imu-from", type=Path, default=None, metavar="DIR",
+                   help="hybrid recording: keep the real IMU and ground truth of the EuRoC/ASL "
+                        "folder (or bag) DIR, rows copied exactly, over --start (seconds after "
+                        "its first IMU sample) and --duration, and render the cameras along its "
+                        "ground truth on its camera clock (uavcal_jax.sim.hybrid). The IMU noise "
+                        "is the real sensor's (--no-imu-noise does not apply); --imu-offset is "
+                        "added to the real samples. Excludes --trajectory")
     p.add_argument("--json", action="store_true",
                    help="print one JSON summary line and no progress bar")
     p.set_defaults(func=run)
@@ -205,8 +234,17 @@ def run(args: argparse.Namespace) -> int:
         for category in shown:
             warnings.simplefilter("always", category)
         warnings.showwarning = _one_line(warnings.showwarning, shown, notes)
-        report = simulate_report(config, args.out, progress=not args.json,
-                                 overwrite=args.overwrite)
+        if args.imu_from is not None:
+            if args.trajectory is not None:
+                raise DataError("--imu-from flies the real recording's ground truth; drop "
+                                "--trajectory")
+            from uavcal_jax.sim.hybrid import simulate_hybrid
+
+            report = simulate_hybrid(args.imu_from, args.out, config, progress=not args.json,
+                                     overwrite=args.overwrite)
+        else:
+            report = simulate_report(config, args.out, progress=not args.json,
+                                     overwrite=args.overwrite)
     seconds = time.perf_counter() - t0
     counts = report.resolved["counts"]
     flight = report.resolved["flight"]

@@ -8,9 +8,13 @@ cache may reuse). One JSON object:
 - ``config``: every field of the simulator's configuration
   (:meth:`uavcal_jax.sim.config.SimConfig.to_dict`), among them ``imu_offset``: the constant
   offset added to the written IMU, 6 numbers (gyro rad/s xyz, accel m/s^2 xyz), or ``null``;
+  ``body_frame`` (``euroc`` or ``flu``: the trajectory file's body convention),
+  ``camera_pitch_deg`` (the stereo rig's pitch below the body's forward axis, ``null``: EuRoC's
+  rig as it is) and ``follow_targets`` (targets planned into the camera's view: track ids
+  ``0 .. N-1``, their world paths in ``target0/track.csv``);
 - ``seeds``: the seed of each stage;
 - ``flight``: where the trajectory came from, and ``t_start_ns`` / ``t_end_ns`` (the IMU's
-  first and last timestamps); for a trajectory file also ``trajectory_fit``
+  first and last timestamps); for a trajectory file also ``body_frame`` and ``trajectory_fit``
   (:class:`uavcal_jax.sim.trajectory_fit.FitReport`), an object of numbers: ``poses``,
   ``merged`` (near-duplicate stamps merged), ``jumps`` (position steps removed),
   ``median_period_s``, ``max_gap_s``, ``knot_spacing_s``, ``smoothing_position``,

@@ -22,9 +22,11 @@ import numpy as np
 
 from uavcal_jax.data.euroc_rig import EUROC_RATE_HZ, EUROC_RESOLUTION, euroc_calibration
 from uavcal_jax.data.sequence import CameraCalibration
+from uavcal_jax.sim.mounting import pitched_rig
 from uavcal_jax.sim.sensor import SensorModel
 
 __all__ = [
+    "BODY_FRAMES",
     "CAMERAS",
     "COLORS",
     "SimConfig",
@@ -38,6 +40,9 @@ __all__ = [
 CAMERAS = ("cam0", "cam1")
 #: Colour modes of the frames: 8-bit gray (like EuRoC; the default) or RGB.
 COLORS = ("gray", "rgb")
+#: Body-frame conventions of a trajectory file (:attr:`SimConfig.body_frame`): EuRoC's IMU
+#: frame (x up, z forward) or a quadrotor frame x forward, y left, z up.
+BODY_FRAMES = ("euroc", "flu")
 #: Stages with their own random stream, in :func:`stage_seeds`' order.
 STAGES = ("flight", "imu", "scene", "camera")
 
@@ -52,6 +57,20 @@ class SimConfig:
         start: seconds after the trajectory file's first timestamp where the recording starts
             (ignored for procedural flights). Output timestamps stay on the file's clock.
         duration: seconds of flight to record.
+        body_frame: the body convention of the trajectory file's orientations: ``"euroc"``
+            (EuRoC's IMU frame, x up and z forward; the file's frame is the IMU frame) or
+            ``"flu"`` (x forward, y left, z up, as UZH-FPV and most motion-capture rigs):
+            EuRoC's IMU is then mounted on it as on EuRoC's MAV
+            (:func:`uavcal_jax.sim.simulate.mount_imu` with
+            :func:`~uavcal_jax.data.euroc_rig.euroc_imu_mounting`), as procedural flights
+            (always built x forward, z up) are. Ignored for procedural flights.
+        camera_pitch_deg: the stereo rig's pitch below the quadrotor's forward axis, degrees
+            (0 looks forward, 90 straight down): both cameras are turned together about the
+            body's lateral axis (:func:`uavcal_jax.sim.mounting.pitched_rig`) and their
+            ``T_BS`` (written to ``sensor.yaml``) are the turned ones. ``None``: EuRoC's rig as
+            it is, whose cam0 looks 19.8 degrees below forward (cam1 19.0) when the IMU sits
+            as on EuRoC's MAV. For a ``"euroc"`` trajectory the quadrotor's axes are those of
+            EuRoC's MAV mounting (:func:`uavcal_jax.data.euroc_rig.euroc_imu_mounting`).
         resolution: ``(width, height)`` of the frames; other than EuRoC's 752x480, the EuRoC
             intrinsics are scaled to keep the field of view.
         color: ``"gray"`` (8-bit single channel, like EuRoC) or ``"rgb"``.
@@ -68,6 +87,11 @@ class SimConfig:
             the ground truth.
         depth: write depth0/depth1 with the frames.
         targets: write target0 labels with the frames.
+        follow_targets: moving targets (car, person, alternating) to place on the floor where
+            the left camera looks along the flight (:mod:`uavcal_jax.sim.follow_targets`):
+            each moves, stops and turns, staying in cam0's view most of the time. They are
+            track ids ``0 .. follow_targets - 1`` of the labels (the scene's other targets
+            follow); their world tracks are in ``target0/track.csv``.
         camera_rate_hz: frame rate (EuRoC: 20 Hz).
         imu_rate_hz: IMU and ground-truth rate (EuRoC: 200 Hz).
         ideal_camera: write the renderer's noise-free, sharp image (``round(255 L)``) and
@@ -88,6 +112,8 @@ class SimConfig:
     trajectory: str | None = None
     start: float = 0.0
     duration: float = 10.0
+    body_frame: str = BODY_FRAMES[0]
+    camera_pitch_deg: float | None = None
     resolution: tuple[int, int] = EUROC_RESOLUTION
     color: str = COLORS[0]
     seed: int = 0
@@ -96,6 +122,7 @@ class SimConfig:
     frames: bool = True
     depth: bool = True
     targets: bool = True
+    follow_targets: int = 0
     camera_rate_hz: float = EUROC_RATE_HZ
     imu_rate_hz: float = 200.0
     ideal_camera: bool = False
@@ -112,6 +139,8 @@ class SimConfig:
             object.__setattr__(self, name, float(getattr(self, name)))
         if self.trajectory is not None:
             object.__setattr__(self, "trajectory", os.fspath(self.trajectory))
+        if self.camera_pitch_deg is not None:
+            object.__setattr__(self, "camera_pitch_deg", float(self.camera_pitch_deg))
         if self.imu_offset is not None:
             # a tuple of floats whatever sequence was given (hashable, JSON-ready, and equal
             # to the parsed command-line value); the count is checked by validate()
@@ -121,6 +150,14 @@ class SimConfig:
         """Raise ``ValueError`` for values out of range (the file is checked by simulate)."""
         if self.color not in COLORS:
             raise ValueError(f"color must be one of {COLORS}, got {self.color!r}")
+        if self.body_frame not in BODY_FRAMES:
+            raise ValueError(f"body_frame must be one of {BODY_FRAMES}, got {self.body_frame!r}")
+        if self.camera_pitch_deg is not None and not (
+                np.isfinite(self.camera_pitch_deg) and -90.0 <= self.camera_pitch_deg <= 90.0):
+            raise ValueError("camera_pitch_deg must be in [-90, 90] degrees (0 forward, 90 "
+                             f"down), got {self.camera_pitch_deg}")
+        if not 0 <= self.follow_targets <= 8:
+            raise ValueError(f"follow_targets must be 0..8, got {self.follow_targets}")
         if not (np.isfinite(self.duration) and self.duration > 0):
             raise ValueError(f"duration must be positive, got {self.duration}")
         if not (np.isfinite(self.start) and self.start >= 0):
@@ -173,11 +210,17 @@ def scale_calibration(calib: CameraCalibration, resolution: tuple[int, int]) -> 
 
 
 def camera_calibrations(config: SimConfig) -> dict[str, CameraCalibration]:
-    """EuRoC cam0/cam1 at the configured resolution and frame rate."""
+    """EuRoC cam0/cam1 at the configured resolution and frame rate; with
+    ``camera_pitch_deg`` their ``T_BS`` are the pitched rig's
+    (:func:`uavcal_jax.sim.mounting.pitched_rig`), the extrinsics the frames are rendered
+    with and ``sensor.yaml`` states."""
+    T_BS = pitched_rig([euroc_calibration(i).T_BS for i in range(len(CAMERAS))],
+                       config.camera_pitch_deg)
     out = {}
     for i, name in enumerate(CAMERAS):
         calib = scale_calibration(euroc_calibration(i), config.resolution)
-        out[name] = dataclasses.replace(calib, rate_hz=float(config.camera_rate_hz))
+        out[name] = dataclasses.replace(calib, rate_hz=float(config.camera_rate_hz),
+                                        T_BS=T_BS[i])
     return out
 
 

@@ -6,7 +6,9 @@ Both EuRoC cameras (cam0, cam1) are rendered at ``T_WC = T_WB(t) @ T_BS`` at the
 caller's timestamps), in a scene built around the flight. Depth ``depthN`` is cam N's z-depth
 in uint16 millimetres (0 = no depth). Target labels (``target0``) list, for each frame and
 camera, every target with visible pixels: the tight box around those pixels, their count, and
-the target's 3D world position.
+the target's 3D world position; ``target0/track.csv`` holds every target's world state at every
+frame. ``SimConfig.follow_targets`` adds targets that move where cam0 looks
+(:mod:`uavcal_jax.sim.follow_targets`).
 
 The frames go through EuRoC's camera (:class:`CameraEffects`, on unless
 ``SimConfig.ideal_camera``): motion blur over the exposure from the trajectory's poses
@@ -33,11 +35,12 @@ import numpy as np
 
 from uavcal_jax.data.euroc_writer import EurocWriter, depth_to_millimetres
 from uavcal_jax.data.sequence import CameraCalibration
-from uavcal_jax.data.targets import TargetLabels
+from uavcal_jax.data.targets import TargetLabels, TargetTracks
 from uavcal_jax.geometry import camera as camera_model
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.sim import motion_blur, render, scene, sensor
 from uavcal_jax.sim.config import CAMERAS, SimConfig, sensor_model
+from uavcal_jax.sim.follow_targets import follow_request
 from uavcal_jax.sim.scene_build import make_scene
 from uavcal_jax.sim.sensor import SensorModel
 
@@ -188,7 +191,8 @@ def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
     path_t = traj.times(10.0)
     path = traj.position(path_t)  # obstacles and targets keep clear of the path
     optical_axis = traj.rotation_matrix(path_t) @ calibs[CAMERAS[0]].T_BS[:3, 2]
-    scn = make_scene(lo, hi, scene_seed, path_points=path, view_directions=optical_axis)
+    scn = make_scene(lo, hi, scene_seed, path_points=path, view_directions=optical_axis,
+                     follow=_follow(config, traj, calibs, imu_t_ns))
     class_id, positions, class_names = _target_info(scn, t_rel)
     n_targets = int(class_id.shape[0])
     lenses = [camera_model.from_calibration(calibs[name]) for name in CAMERAS]
@@ -250,7 +254,7 @@ def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
 
     tw = time.perf_counter()
     if config.targets:
-        writer.write_targets(_labels(rows, class_names))
+        writer.write_targets(_labels(rows, class_names, _target_tracks(scn, cam_t_ns, t_rel)))
     write_wait += time.perf_counter() - tw
     timings["render"] = render_wait
     timings["write_wait"] = write_wait
@@ -273,7 +277,26 @@ def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
     return info, timings
 
 
-def _labels(rows: list[tuple], class_names: tuple[str, ...]) -> TargetLabels:
+def _follow(config: SimConfig, traj, calibs, imu_t_ns: np.ndarray):
+    """The follow targets' :class:`~uavcal_jax.sim.follow_targets.FollowRequest` (cam0 over
+    the IMU's span, scene time 0 at its first sample), or ``None``."""
+    cam = calibs[CAMERAS[0]]
+    return follow_request(traj, cam.T_BS, cam.intrinsics, cam.resolution, int(imu_t_ns[0]),
+                          int(imu_t_ns[-1]), config.follow_targets)
+
+
+def _target_tracks(scn, cam_t_ns: np.ndarray, t_rel: np.ndarray) -> TargetTracks:
+    """Every target's world state at every frame time (``target0/track.csv``)."""
+    pos, yaw, vel = (np.asarray(a, dtype=np.float64) for a in jax.vmap(
+        lambda t: scene.target_states(scn, t))(jnp.asarray(t_rel, jnp.float32)))
+    class_id = np.asarray(scn.targets.class_id, dtype=np.int64).reshape(-1)
+    return TargetTracks(t_ns=np.asarray(cam_t_ns, dtype=np.int64),
+                        track_id=np.arange(class_id.shape[0], dtype=np.int64),
+                        class_id=class_id, position=pos, yaw=yaw, velocity=vel)
+
+
+def _labels(rows: list[tuple], class_names: tuple[str, ...],
+            tracks: TargetTracks | None = None) -> TargetLabels:
     m = len(rows)
     cols = list(zip(*rows, strict=True)) if rows else [()] * 7
     return TargetLabels(
@@ -285,4 +308,5 @@ def _labels(rows: list[tuple], class_names: tuple[str, ...]) -> TargetLabels:
         visible_pixels=np.asarray(cols[5], dtype=np.int64),
         position=np.asarray(cols[6], dtype=np.float64).reshape(m, 3),
         class_names=class_names,
+        tracks=tracks,
     )

@@ -9,10 +9,12 @@ the whole bounds box when none are given), so the camera never enters a solid. T
 built by :func:`uavcal_jax.sim.scene_build.make_scene`.
 
 Targets. ``CLASS_NAMES[c]`` is target class ``c`` ("car": a low wide box, "person": a tall
-narrow one). A target is static or moves on a closed ellipse on the floor at constant angular
-rate, facing along its velocity; its pose is a pure function of the scene and the time
-(:func:`target_poses`). Scene time ``t`` is seconds since the start of the flight (keep it
-small: the renderer works in float32, so absolute EuRoC timestamps would lose all precision).
+narrow one). A target is static, moves on a closed ellipse on the floor at constant angular
+rate, facing along its velocity, or follows a sampled ground track (position and heading; a
+follow target, :mod:`uavcal_jax.sim.follow_targets`); its pose is a pure function of the scene
+and the time (:func:`target_poses`). Scene time ``t`` is seconds since the start of the flight
+(keep it small: the renderer works in float32, so absolute EuRoC timestamps would lose all
+precision).
 
 Appearance. Every face of every box has its own luminance texture, stored in one flat atlas
 and mixed between two colours per face (``colour = A + (B - A) * texture``); see
@@ -103,6 +105,13 @@ class Targets:
         phase: (n,) ellipse parameter at ``t = 0``, radians.
         yaw: (n,) heading of a static target, radians.
         z: (n,) world z of the box centre (floor + half height).
+        tracked: (n,) bool: the target follows ``track`` instead of its ellipse (a follow
+            target, :mod:`uavcal_jax.sim.follow_targets`).
+        track: (n, K, 3) ``x, y, yaw`` (world metres; radians, unwrapped) of a tracked target
+            at scene times ``track_t0 + k track_dt``, linearly interpolated between them and
+            held beyond the ends (``K = 1`` and unused when no target is tracked).
+        track_t0: (n,) scene seconds of ``track[:, 0]``.
+        track_dt: (n,) seconds between track samples (positive).
     """
 
     class_id: Any
@@ -114,6 +123,10 @@ class Targets:
     phase: Any
     yaw: Any
     z: Any
+    tracked: Any
+    track: Any
+    track_t0: Any
+    track_dt: Any
 
     @property
     def n(self) -> int:
@@ -224,6 +237,19 @@ def target_states(scene: Scene, t) -> tuple[jax.Array, jax.Array, jax.Array]:
     wx, wy = cp * vx - sp * vy, sp * vx + cp * vy
     moving = (tg.omega != 0) & (jnp.abs(wx) + jnp.abs(wy) > 0)
     yaw = jnp.where(moving, jnp.arctan2(wy, jnp.where(moving, wx, 1.0)), tg.yaw)
+    # tracked targets: linear interpolation of their track samples
+    K = tg.track.shape[1]
+    s = jnp.clip((t - tg.track_t0) / tg.track_dt, 0.0, K - 1.0)
+    i0 = jnp.clip(jnp.floor(s).astype(jnp.int32), 0, max(K - 2, 0))
+    i1 = jnp.minimum(i0 + 1, K - 1)
+    a = jnp.take_along_axis(tg.track, i0[:, None, None], axis=1)[:, 0]
+    b = jnp.take_along_axis(tg.track, i1[:, None, None], axis=1)[:, 0]
+    q = a + (s - i0.astype(s.dtype))[:, None] * (b - a)
+    inside = (t >= tg.track_t0) & (t <= tg.track_t0 + (K - 1) * tg.track_dt) & (i1 > i0)
+    tv = jnp.where(inside[:, None], (b - a)[:, :2] / tg.track_dt[:, None], 0.0)
+    px, py = jnp.where(tg.tracked, q[:, 0], px), jnp.where(tg.tracked, q[:, 1], py)
+    wx, wy = jnp.where(tg.tracked, tv[:, 0], wx), jnp.where(tg.tracked, tv[:, 1], wy)
+    yaw = jnp.where(tg.tracked, q[:, 2], yaw)
     pos = jnp.stack([px, py, tg.z], axis=-1)
     vel = jnp.stack([wx, wy, jnp.zeros_like(wx)], axis=-1)
     return pos, yaw, vel

@@ -2,7 +2,8 @@
 
 :func:`make_scene` sizes the hall to the flight's bounds, places obstacles (pillars and crates)
 and targets (cars and people, some moving on ellipses) so that they keep a clearance from the
-flight path (and, given the camera's view directions, so that the targets are seen), then
+flight path (and, given the camera's view directions, so that the targets are seen), plans the
+follow targets' tracks when asked (:mod:`uavcal_jax.sim.follow_targets`), then
 textures every face (:mod:`uavcal_jax.sim.textures`) and picks two directional lights. All of
 it is drawn from one ``numpy`` generator seeded by ``seed``: a seed gives the same scene.
 """
@@ -14,6 +15,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
+from uavcal_jax.sim.follow_targets import FollowRequest, plan_tracks
 from uavcal_jax.sim.scene import CAR, CLASS_NAMES, PERSON, Scene, SceneConfig, Targets
 from uavcal_jax.sim.textures import detail_quads, face_atlas
 
@@ -60,7 +62,7 @@ def _discs_overlap(a: tuple[np.ndarray, float], b: tuple[np.ndarray, float], gap
     return float(np.linalg.norm(a[0] - b[0])) < a[1] + b[1] + gap
 
 
-def _place_obstacles(rng, cfg, room_lo, room_hi, keep, keep_pad) -> list[_Solid]:
+def _place_obstacles(rng, cfg, room_lo, room_hi, keep, keep_pad, avoid=None) -> list[_Solid]:
     solids: list[_Solid] = []
     floor, ceil = room_lo[2], room_hi[2]
     n_pillars = int(round(cfg.n_obstacles * cfg.pillar_fraction))
@@ -79,12 +81,19 @@ def _place_obstacles(rng, cfg, room_lo, room_hi, keep, keep_pad) -> list[_Solid]
             d = _point_box_distance(keep, center, yaw, half)
             if d.min() < cfg.clearance + keep_pad:
                 continue
+            if avoid is not None and np.any(
+                    _point_box_distance(avoid[0], center, yaw, half) < avoid[1]):
+                continue  # on a follow target's track or line of sight
             disc = (center[:2].copy(), float(np.hypot(half[0], half[1])))
             if any(_discs_overlap(disc, s.footprint, 0.0) for s in solids):
                 continue
             solids.append(_Solid(center, yaw, half, disc))
             break
     return solids
+
+
+#: The tallest target (a person's largest height in :func:`_target_size`), metres.
+MAX_TARGET_HEIGHT = 1.9
 
 
 def _target_size(rng, cls: int) -> np.ndarray:
@@ -94,7 +103,7 @@ def _target_size(rng, cls: int) -> np.ndarray:
 
 
 def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
-                   anchors=None, view_yaw=None) -> list[dict]:
+                   anchors=None, view_yaw=None, avoid=None) -> list[dict]:
     targets: list[dict] = []
     if anchors is None:
         anchors = keep[:, :2]
@@ -145,6 +154,12 @@ def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
                     d = _point_box_distance(keep, np.array([xy[0], xy[1], z]), yaw, half)
                 if d.min() < cfg.clearance + keep_pad:
                     continue
+                if avoid is not None:  # off the follow targets' tracks and lines of sight
+                    d = (_point_cylinder_distance(avoid[0], xy, reach, floor,
+                                                  floor + 2 * half[2]) if mov else
+                         _point_box_distance(avoid[0], np.array([xy[0], xy[1], z]), yaw, half))
+                    if np.any(d < avoid[1]):
+                        continue
                 disc = (xy.copy(), reach)
                 if any(_discs_overlap(disc, s.footprint) for s in obstacles):
                     continue
@@ -170,6 +185,59 @@ def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
     return targets
 
 
+def _follow_targets(rng, cfg, req: FollowRequest, floor: float) -> list[dict]:
+    """Follow targets along ``req`` (:mod:`uavcal_jax.sim.follow_targets`): classes cycle
+    through ``cfg.target_classes``; target dicts as :func:`_place_targets`' plus the track."""
+    classes = [int(cfg.target_classes[i % len(cfg.target_classes)]) for i in range(req.n)]
+    halves = np.stack([_target_size(rng, c) for c in classes])
+    tracks = plan_tracks(req, floor, rng, classes, halves)
+    out = []
+    for cls, half, track in zip(classes, halves, tracks, strict=True):
+        out.append(dict(
+            class_id=cls, half=half, center=track[:, :2].mean(0),
+            reach=float(np.hypot(half[0], half[1])), radii=np.zeros(2), path_yaw=0.0,
+            omega=0.0, phase=0.0, yaw=float(track[0, 2]), z=floor + half[2], tracked=True,
+            track=track, track_t0=float(req.t[0]), track_dt=float(req.t[1] - req.t[0])
+            if req.t.shape[0] > 1 else 1.0,
+        ))  # fmt: skip
+    return out
+
+
+def _follow_keepout(follow: list[dict], req: FollowRequest, stride: int = 4
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Points (M, 3) and radii (M,) that other solids must keep clear of: the follow targets'
+    swept boxes (every ``stride``-th track sample, radius reach + 0.3 m) and their lines of
+    sight from the left camera (radius 0.25 m), so that nothing stands on or hides them."""
+    pts, rad = [], []
+    cam = req.T_WC[::stride, :3, 3]
+    for tg in follow:
+        centre = np.concatenate([tg["track"][::stride, :2],
+                                 np.full((cam.shape[0], 1), tg["z"])], -1)
+        for h in (-0.7, 0.0, 0.7):  # the box's bottom, middle and top
+            pts.append(centre + np.array([0.0, 0.0, h * tg["half"][2]]))
+            rad.append(np.full(centre.shape[0], tg["reach"] + 0.3))
+        for f in np.linspace(0.1, 0.9, 9):
+            pts.append(cam + f * (centre - cam))
+            rad.append(np.full(centre.shape[0], 0.25))
+    return np.concatenate(pts), np.concatenate(rad)
+
+
+def _track_arrays(targets: list[dict]) -> dict[str, jnp.ndarray]:
+    """:class:`Targets`' ``tracked``, ``track``, ``track_t0``, ``track_dt`` (float32; all
+    tracks share one length, K = 1 zeros when none is tracked)."""
+    n = len(targets)
+    K = max([tg["track"].shape[0] for tg in targets if tg.get("tracked")] + [1])
+    track = np.zeros((n, K, 3), np.float32)
+    t0, dt = np.zeros(n, np.float32), np.ones(n, np.float32)
+    for i, tg in enumerate(targets):
+        if tg.get("tracked"):
+            track[i] = tg["track"]
+            t0[i], dt[i] = tg["track_t0"], tg["track_dt"]
+    tracked = np.array([bool(tg.get("tracked")) for tg in targets], dtype=bool)
+    return dict(tracked=jnp.asarray(tracked), track=jnp.asarray(track),
+                track_t0=jnp.asarray(t0), track_dt=jnp.asarray(dt))
+
+
 def make_scene(
     lo,
     hi,
@@ -178,6 +246,7 @@ def make_scene(
     *,
     path_points=None,
     view_directions=None,
+    follow: FollowRequest | None = None,
 ) -> Scene:
     """Build a scene around the axis-aligned bounds ``[lo, hi]`` of a flight.
 
@@ -191,6 +260,12 @@ def make_scene(
         view_directions: (M, 3) world-frame optical axes of a camera at ``path_points``;
             when given, targets are placed in front of that camera (within about +-30 degrees
             of its heading) instead of in any direction around the path.
+        follow: ``follow.n`` follow targets to plan along the left camera's view
+            (:mod:`uavcal_jax.sim.follow_targets`); they are targets ``0 .. n-1``, the
+            ordinary ones follow. The floor is then at least the tallest target plus the
+            clearance below the flight (no target can touch the drone), the hall grows to
+            hold their tracks, and obstacles and the other targets keep off their tracks and
+            their lines of sight from the camera.
 
     Returns:
         The scene (arrays float32; textures in one flat atlas).
@@ -201,15 +276,26 @@ def make_scene(
     hi = np.asarray(hi, dtype=np.float64).reshape(3)
     if np.any(hi < lo):
         raise ValueError(f"bounds must satisfy lo <= hi, got lo={lo}, hi={hi}")
-    room_lo = lo - np.array([cfg.margin_xy, cfg.margin_xy, cfg.margin_below])
+    below = cfg.margin_below
+    if follow is not None:
+        below = max(below, MAX_TARGET_HEIGHT + cfg.clearance)
+    room_lo = lo - np.array([cfg.margin_xy, cfg.margin_xy, below])
     room_hi = hi + np.array([cfg.margin_xy, cfg.margin_xy, cfg.margin_above])
+    followers: list[dict] = []
+    avoid = None
+    if follow is not None:
+        followers = _follow_targets(rng, cfg, follow, float(room_lo[2]))
+        for tg in followers:  # the hall holds the tracks, with a metre to spare
+            room_lo[:2] = np.minimum(room_lo[:2], tg["track"][:, :2].min(0) - tg["reach"] - 1)
+            room_hi[:2] = np.maximum(room_hi[:2], tg["track"][:, :2].max(0) + tg["reach"] + 1)
+        avoid = _follow_keepout(followers, follow)
     short = np.maximum(np.asarray(cfg.min_size) - (room_hi - room_lo), 0.0)
     room_lo[:2] -= 0.5 * short[:2]
     room_hi[:2] += 0.5 * short[:2]
     room_hi[2] += short[2]
     keep, keep_pad = _keepout_points(lo, hi, path_points)
 
-    obstacles = _place_obstacles(rng, cfg, room_lo, room_hi, keep, keep_pad)
+    obstacles = _place_obstacles(rng, cfg, room_lo, room_hi, keep, keep_pad, avoid)
     anchors = view_yaw = None
     if view_directions is not None and path_points is not None:
         anchors = np.asarray(path_points, dtype=np.float64).reshape(-1, 3)[:, :2]
@@ -218,8 +304,8 @@ def make_scene(
             raise ValueError(f"view_directions has {view.shape[0]} rows, path_points "
                              f"{anchors.shape[0]}")
         view_yaw = np.arctan2(view[:, 1], view[:, 0])
-    targets = _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
-                             anchors, view_yaw)
+    targets = followers + _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad,
+                                         obstacles, anchors, view_yaw, avoid)
 
     room_c, room_h = 0.5 * (room_lo + room_hi), 0.5 * (room_hi - room_lo)
     static = [(room_c, 0.0, room_h)] + [(o.center, o.yaw, o.half) for o in obstacles]
@@ -256,6 +342,7 @@ def make_scene(
         phase=tcol("phase", (n_t,)),
         yaw=tcol("yaw", (n_t,)),
         z=tcol("z", (n_t,)),
+        **_track_arrays(targets),
     )
     return Scene(
         box_center=jnp.asarray(np.array([s[0] for s in static], f32)),

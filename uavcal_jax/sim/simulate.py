@@ -24,10 +24,12 @@ fit's residual and the flight's peak specific force and angular rate
 file) is refused with a ``DataError`` (the limits are
 :class:`~uavcal_jax.sim.trajectory_fit.FitConfig` fields).
 
-Body frame. The body frame is the IMU frame. A trajectory file is EuRoC's IMU frame already; a
-procedural flight (a quadrotor frame, z up) gets EuRoC's IMU mounting (:func:`mount_imu`: IMU
-x up, z forward and 20 degrees down), so EuRoC's camera extrinsics look ahead and the IMU
-reads gravity on x as EuRoC's does.
+Body frame. The body frame is the IMU frame. A trajectory file is EuRoC's IMU frame already
+(``SimConfig.body_frame="euroc"``); a procedural flight, and a file with ``body_frame="flu"``
+(a quadrotor frame: x forward, y left, z up), gets EuRoC's IMU mounting (:func:`mount_imu`:
+IMU x up, z forward and 20 degrees down), so EuRoC's camera extrinsics look ahead and the IMU
+reads gravity on x as EuRoC's does. ``SimConfig.camera_pitch_deg`` turns the stereo rig
+(:func:`uavcal_jax.sim.mounting.pitched_rig`; the cameras' ``T_BS`` are the turned ones).
 
 IMU offset. ``SimConfig.imu_offset`` makes a miscalibrated recording: the offset is added
 (:func:`uavcal_jax.imu.offset.add_offset`) to the samples written to ``imu0/data.csv`` after
@@ -160,9 +162,14 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
         except ValueError as err:
             raise DataError(f"cannot fit a trajectory: {err}", path) from None
         check_flight_limits(fit, fit_config, path)
+        if config.body_frame == "flu":
+            # the file's body is a quadrotor frame (x forward, z up): EuRoC's IMU is mounted
+            # on it as on the procedural flights, so the rig looks forward and the IMU reads
+            # gravity on x (a constant rotation: the fit's peak force and rate are unchanged)
+            traj = mount_imu(traj, euroc_imu_mounting())
         info = {"source": str(path.resolve()), "file_first_t_ns": first_ns,
                 "file_last_t_ns": last_ns, "start_s_after_first": float(config.start),
-                "trajectory_fit": fit.to_dict()}
+                "body_frame": config.body_frame, "trajectory_fit": fit.to_dict()}
     t_ns = t0_ns + period_ns * np.arange(n, dtype=np.int64)
     return traj, t_ns, info
 
