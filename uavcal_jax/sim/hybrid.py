@@ -34,11 +34,7 @@ recording whose ground truth carries the real biases.
 from __future__ import annotations
 
 import dataclasses
-import os
-import shutil
-import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -49,11 +45,17 @@ from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.data.euroc_writer import EurocWriter
 from uavcal_jax.data.read import read_sequence
 from uavcal_jax.data.sequence import GroundTruth, ImuData, Sequence
-from uavcal_jax.data.sim_config import SIM_CONFIG_FILE, write_sim_config
+from uavcal_jax.data.sim_config import SIM_CONFIG_FILE
 from uavcal_jax.errors import DataError
 from uavcal_jax.sim.config import SimConfig, camera_calibrations, stage_seeds
 from uavcal_jax.sim.frames import render_frames
-from uavcal_jax.sim.simulate import SimReport, _calib_dict, _check_out_dir, _with_offset
+from uavcal_jax.sim.simulate import (
+    SimReport,
+    calib_dict,
+    check_out_dir,
+    with_offset,
+    write_recording_atomically,
+)
 from uavcal_jax.sim.trajectory_fit import fit_tum_trajectory
 
 __all__ = ["HybridSpan", "hybrid_span", "read_real", "simulate_hybrid", "trigger_phase"]
@@ -226,31 +228,10 @@ def simulate_hybrid(real: str | Path, out_dir: str | Path, config: SimConfig | N
                          "samples)")
     span = hybrid_span(seq, config.start, config.duration, int(round(ratio)), real)
     out_dir = Path(out_dir)
-    _check_out_dir(out_dir, overwrite)
-    report = _write_atomically(out_dir, lambda root: _hybrid_into(
+    check_out_dir(out_dir, overwrite)
+    report = write_recording_atomically(out_dir, lambda root: _hybrid_into(
         seq, real, span, config, root, progress))
     report.root = out_dir
-    return report
-
-
-def _write_atomically(out_dir: Path, build: Callable[[Path], SimReport]) -> SimReport:
-    """Build into a temporary sibling folder, write ``sim_config.json`` last and rename it to
-    ``out_dir`` (replacing a previous simulation there), as :func:`simulate_report` does."""
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
-    try:
-        report = build(tmp)
-        write_sim_config(tmp, report.resolved)
-        if out_dir.exists():
-            trash = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
-            os.replace(out_dir, trash / "old")
-            os.replace(tmp, out_dir)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.replace(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return report
 
 
@@ -287,7 +268,7 @@ def _hybrid_into(seq: Sequence, real: Path, span: HybridSpan, config: SimConfig,
         "seeds": seeds,
         "flight": flight,
         "imu_noise": None,  # the real sensor's: its densities are in imu_calibration
-        "imu_calibration": _calib_dict(seq.imu_calibration),
+        "imu_calibration": calib_dict(seq.imu_calibration),
         "counts": {"imu": len(imu), "ground_truth": len(gt)},
     }
 
@@ -298,7 +279,7 @@ def _hybrid_into(seq: Sequence, real: Path, span: HybridSpan, config: SimConfig,
     with EurocWriter(root, workers=config.png_workers,
                      body_comment=f"uavcal-jax hybrid: real IMU and ground truth of {seq.name}, "
                                   "simulated cameras") as writer:
-        writer.write_imu(_with_offset(imu, config.imu_offset), seq.imu_calibration,
+        writer.write_imu(with_offset(imu, config.imu_offset), seq.imu_calibration,
                          comment=comment)
         writer.write_ground_truth(gt, comment=f"Real ground truth of {seq.name} (rows copied); "
                                               "the frames follow a trajectory fitted to it.")
@@ -307,7 +288,7 @@ def _hybrid_into(seq: Sequence, real: Path, span: HybridSpan, config: SimConfig,
             frame_info, frame_timings = render_frames(
                 config, traj, imu.t_ns, calibs, seeds["scene"], writer, show_progress,
                 camera_seed=seeds["camera"], cam_t_ns=span.cam_t_ns)
-            resolved["cameras"] = {k: _calib_dict(c) for k, c in calibs.items()}
+            resolved["cameras"] = {k: calib_dict(c) for k, c in calibs.items()}
             resolved["camera_model"] = frame_info["camera_model"]
             resolved["scene"] = frame_info["scene"]
             resolved["counts"].update(frame_info["counts"])

@@ -52,6 +52,7 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -78,8 +79,8 @@ from uavcal_jax.sim.frames import render_frames
 from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import FitConfig, check_flight_limits, fit_trajectory_report
 
-__all__ = ["SimReport", "imu_calibration", "load_flight", "mount_imu", "simulate",
-           "simulate_report"]
+__all__ = ["SimReport", "calib_dict", "check_out_dir", "imu_calibration", "load_flight",
+           "mount_imu", "simulate", "simulate_report", "with_offset", "write_recording_atomically"]
 
 
 @dataclass
@@ -174,7 +175,7 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
     return traj, t_ns, info
 
 
-def _with_offset(imu: ImuData, offset: tuple[float, ...] | None) -> ImuData:
+def with_offset(imu: ImuData, offset: tuple[float, ...] | None) -> ImuData:
     """``imu`` as read by a sensor with the constant ``offset`` (6,) (gyro rad/s, accel
     m/s^2; ``None``: unchanged), in float64."""
     if offset is None:
@@ -215,7 +216,9 @@ def _looks_replaceable(folder: Path) -> bool:
     return not entries or SIM_CONFIG_FILE in entries or entries <= {fmt.MAV0}
 
 
-def _check_out_dir(out_dir: Path, overwrite: bool) -> None:
+def check_out_dir(out_dir: Path, overwrite: bool) -> None:
+    """Refuse (:class:`DataError`) an ``out_dir`` that holds anything but an empty folder, or,
+    with ``overwrite``, a previous simulation."""
     if not out_dir.exists():
         return
     if not out_dir.is_dir():
@@ -255,11 +258,20 @@ def simulate_report(config: SimConfig, out_dir: str | Path, progress: bool = Tru
     """:func:`simulate`, returning the resolved configuration and per-stage timings too."""
     config.validate()
     out_dir = Path(out_dir)
-    _check_out_dir(out_dir, overwrite)
+    check_out_dir(out_dir, overwrite)
+    return write_recording_atomically(out_dir, lambda root: _simulate_into(config, root,
+                                                                             progress))
+
+
+def write_recording_atomically(out_dir: Path, build: Callable[[Path], SimReport]) -> SimReport:
+    """``build`` a recording into a temporary sibling folder, write its ``sim_config.json``
+    last and rename the folder to ``out_dir`` (replacing a previous simulation there): an
+    interrupted run leaves no half-written recording under ``out_dir``. Returns the report
+    with ``root`` set to ``out_dir``."""
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
     try:
-        report = _simulate_into(config, tmp, progress)
+        report = build(tmp)
         write_sim_config(tmp, report.resolved)
         if out_dir.exists():
             trash = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
@@ -301,13 +313,13 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
         "flight": {**flight, "t_start_ns": int(imu.t_ns[0]), "t_end_ns": int(imu.t_ns[-1])},
         "imu_noise": ({**dataclasses.asdict(noise), "turn_on_bias": dataclasses.asdict(turn_on)}
                       if noise is not None else None),
-        "imu_calibration": _calib_dict(imu_calib),
+        "imu_calibration": calib_dict(imu_calib),
         "counts": {"imu": len(imu), "ground_truth": len(gt)},
     }
 
     t_write = time.perf_counter()
     with EurocWriter(root, workers=config.png_workers) as writer:
-        writer.write_imu(_with_offset(imu, config.imu_offset), imu_calib,
+        writer.write_imu(with_offset(imu, config.imu_offset), imu_calib,
                          comment=_imu_comment(config))
         writer.write_ground_truth(gt)
         write_s = time.perf_counter() - t_write
@@ -316,7 +328,7 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
             frame_info, frame_timings = render_frames(config, traj, imu.t_ns, calibs,
                                                       seeds["scene"], writer, show_progress,
                                                       camera_seed=seeds["camera"])
-            resolved["cameras"] = {k: _calib_dict(c) for k, c in calibs.items()}
+            resolved["cameras"] = {k: calib_dict(c) for k, c in calibs.items()}
             resolved["camera_model"] = frame_info["camera_model"]
             resolved["scene"] = frame_info["scene"]
             resolved["counts"].update(frame_info["counts"])
@@ -338,7 +350,7 @@ def _imu_comment(config: SimConfig) -> str:
     return text
 
 
-def _calib_dict(calib) -> dict[str, Any]:
+def calib_dict(calib) -> dict[str, Any]:
     """A calibration record as JSON-ready values (for ``sim_config.json``)."""
     d = dataclasses.asdict(calib)
     return {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray | tuple) else v)
