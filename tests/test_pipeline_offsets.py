@@ -205,3 +205,29 @@ def test_bad_method_argument_or_key_is_one_line_exit_2(tmp_path, capsys, argv, n
     assert len(err) == 1, err
     for needle in needles:
         assert needle in err[0], err[0]
+
+
+def test_pooled_scores_per_channel_sensor_and_no_correction():
+    from uavcal_jax.pipeline.offset_scores import NO_CORRECTION, pooled_scores
+
+    true = np.array([[0.02, -0.01, 0.03, 0.1, -0.2, 0.05], [-0.04, 0.02, 0.01, -0.1, 0.1, 0.2]])
+    err = np.array([[0.001, -0.002, 0.0, 0.01, 0.0, -0.02], [0.003, 0.0, 0.0, 0.0, 0.03, 0.0]])
+    rows = [{"recording": f"r{i}", "method": "a", "channels": list(SIX_CHANNELS),
+             "offset": (true[i] + err[i]).tolist(), "true": true[i].tolist(),
+             "error": err[i].tolist()} for i in range(2)]
+    rows += [{"recording": f"r{i}", "method": "g", "channels": ["gx", "gy", "gz"],
+              "offset": [0.0, 0.0, 0.0], "true": true[i, :3].tolist(),
+              "error": (-true[i, :3]).tolist()} for i in range(2)]
+    rows.append({"recording": "r2", "method": "a", "channels": list(SIX_CHANNELS),
+                 "offset": [0.0] * 6, "true": None, "error": None})  # truth unknown: left out
+    pooled = pooled_scores(rows)
+    assert list(pooled) == ["a", "g", NO_CORRECTION]
+    a = pooled["a"]
+    assert a["recordings"] == 2 and a["sign_f1"] == 1.0
+    assert a["rmse"]["gx"] == pytest.approx(np.sqrt((0.001**2 + 0.003**2) / 2))
+    assert a["gyro_rmse"] == pytest.approx(np.sqrt(np.mean(err[:, :3] ** 2)))
+    assert a["accel_rmse"] == pytest.approx(np.sqrt(np.mean(err[:, 3:] ** 2)))
+    assert pooled["g"]["accel_rmse"] is None and pooled["g"]["channels"] == ["gx", "gy", "gz"]
+    none = pooled[NO_CORRECTION]
+    assert none["accel_rmse"] == pytest.approx(np.sqrt(np.mean(true[:, 3:] ** 2)))
+    assert none["sign_f1"] == 0.0

@@ -1,0 +1,151 @@
+"""The IMU offset estimators that need no ground truth, on flights they have never seen and on
+a real IMU: the tables behind issue 20's checks (``uavcal calib predict --method``).
+
+Recordings:
+
+- **simulated flights** along real EuRoC trajectories (``--flights``, ``--start``,
+  ``--duration``), each with its own physical-range constant offset injected into the IMU
+  (per axis uniform in +-0.08 rad/s and +-0.16 m/s^2, the calibrator's physical protocol,
+  drawn from ``--seed``); the simulated IMU adds its own turn-on bias and random walk;
+- **the hybrid V1_01 recording** (``--hybrid``): the real V1_01 IMU and ground truth
+  (``../shared/data/euroc_v101_micro``) with frames rendered along the real trajectory
+  (:func:`uavcal_jax.sim.hybrid.simulate_hybrid`); its truth is the real sensor's bias from
+  EuRoC's ground-truth estimate.
+
+Each method (``--methods``) estimates the constant to subtract without the ground truth
+(:func:`uavcal_jax.pipeline.offset_scores.score_recordings`); the truth is the ``total``
+label (the injected offset plus the sensor's own bias over the span the method used). The
+table pools the simulated flights (RMS error per axis, per sensor, sign F1) beside no
+correction, and gives the hybrid's errors per axis. Recordings are rendered into ``--cache``
+once.
+
+Usage::
+
+    python experiments/calib_blind.py                          # 3 flights + hybrid, ~30 min
+    python experiments/calib_blind.py --flights MH_04_difficult --duration 20 --no-hybrid
+
+Writes ``OUT/table.md`` and ``OUT/results.json``; the last stdout line is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from _calib_common import ROOT, SHARED_DATA  # the script's folder is first on sys.path
+
+from uavcal_jax.calib.config import InjectionConfig
+from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD, method_names
+from uavcal_jax.pipeline.offset_scores import NO_CORRECTION, pooled_scores, score_recordings
+from uavcal_jax.sim.cache import cached_simulation, config_tag
+from uavcal_jax.sim.config import SimConfig
+
+#: EuRoC trajectories held out of the shipped calibrator's training (calib_default_weights.py
+#: trains on procedural flights) and of the tests.
+DEFAULT_FLIGHTS = ("MH_04_difficult", "V1_03_difficult", "V2_02_medium")
+MICRO = SHARED_DATA / "euroc_v101_micro"
+
+
+def physical_offsets(n: int, seed: int) -> np.ndarray:
+    """``(n, 6)`` offsets, per axis uniform in the physical protocol's ranges."""
+    inj = InjectionConfig()
+    bound = np.array([inj.gyro_range] * 3 + [inj.accel_range] * 3)
+    return np.random.default_rng(seed).uniform(-bound, bound, size=(n, 6))
+
+
+def _flights(args) -> list[Path]:
+    offsets = physical_offsets(len(args.flights), args.seed)
+    out = []
+    for name, offset in zip(args.flights, offsets, strict=True):
+        config = SimConfig(trajectory=str(SHARED_DATA / "trajectories" / "euroc" / f"{name}.txt"),
+                           start=args.start, duration=args.duration, seed=args.seed,
+                           imu_offset=tuple(float(v) for v in offset), targets=False)
+        out.append(cached_simulation(config, args.cache, name))
+    return out
+
+
+def _hybrid(args) -> Path:
+    from uavcal_jax.sim.hybrid import simulate_hybrid
+
+    config = SimConfig(start=0.0, duration=args.hybrid_duration, seed=args.seed,
+                       targets=False)
+    folder = args.cache / f"hybrid_V1_01_{config_tag(config)}"
+    if not (folder / "sim_config.json").is_file():
+        simulate_hybrid(MICRO, folder, config, overwrite=True, progress=not args.quiet)
+    return folder
+
+
+def _fmt(v) -> str:
+    return "" if v is None else f"{v:.4f}"
+
+
+def _table(pooled: dict, hybrid_rows: list[dict], args) -> str:
+    lines = [f"## Simulated EuRoC-trajectory flights ({', '.join(args.flights)}; "
+             f"{args.duration:g} s from {args.start:g} s; physical-range offsets, seed "
+             f"{args.seed}), total label", "",
+             "| method | gyro RMSE (rad/s) | accel RMSE (m/s^2) | sign F1 | per axis |",
+             "| --- | --- | --- | --- | --- |"]
+    for method, s in pooled.items():
+        axes = ", ".join(f"{c} {v:.4f}" for c, v in s["rmse"].items())
+        lines.append(f"| {method} | {_fmt(s['gyro_rmse'])} | {_fmt(s['accel_rmse'])} | "
+                     f"{s['sign_f1']:.3f} | {axes} |")
+    if hybrid_rows:
+        lines += ["", f"## Hybrid V1_01 (real IMU, {args.hybrid_duration:g} s): error against "
+                  "the real sensor's bias (EuRoC ground-truth estimate)", "",
+                  "| method | " + " | ".join(("gx", "gy", "gz", "ax", "ay", "az")) + " |",
+                  "| --- |" + " --- |" * 6]
+        for r in hybrid_rows:
+            err = dict(zip(r["channels"], r["error"], strict=True))
+            lines.append(f"| {r['method']} | " + " | ".join(
+                _fmt(err.get(c)) for c in ("gx", "gy", "gz", "ax", "ay", "az")) + " |")
+        true = dict(zip(hybrid_rows[0]["channels"], hybrid_rows[0]["true"], strict=True))
+        lines.append(f"| {NO_CORRECTION} | " + " | ".join(
+            _fmt(None if true.get(c) is None else -true[c])
+            for c in ("gx", "gy", "gz", "ax", "ay", "az")) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--flights", type=lambda s: [f for f in s.split(",") if f],
+                    default=list(DEFAULT_FLIGHTS), help="EuRoC trajectory names, comma-separated "
+                    "[default: %(default)s]")
+    ap.add_argument("--start", type=float, default=10.0, help="seconds into each trajectory")
+    ap.add_argument("--duration", type=float, default=30.0, help="seconds per flight")
+    ap.add_argument("--seed", type=int, default=7, help="offsets, IMU noise and scenes")
+    ap.add_argument("--no-hybrid", dest="hybrid", action="store_false",
+                    help="leave out the real-IMU hybrid V1_01 recording")
+    ap.add_argument("--hybrid-duration", type=float, default=40.0)
+    ap.add_argument("--methods", type=lambda s: [m for m in s.split(",") if m],
+                    default=None, help=f"comma-separated methods [default: all: "
+                    f"{', '.join(method_names())}; {DEFAULT_METHOD} is the default one]")
+    ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "calib_cache")
+    ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "out" / "calib_blind")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args()
+    methods = args.methods or list(method_names())
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    flights = _flights(args)
+    rows = score_recordings(flights, methods, progress=not args.quiet)
+    pooled = pooled_scores(rows)
+    hybrid_rows = []
+    if args.hybrid and MICRO.is_dir():
+        hybrid_rows = score_recordings([_hybrid(args)], methods, progress=not args.quiet)
+    table = _table(pooled, hybrid_rows, args)
+    (args.out / "table.md").write_text(table)
+    result = {"flights": [str(f) for f in flights], "methods": methods, "rows": rows,
+              "pooled": pooled, "hybrid": hybrid_rows,
+              "settings": {k: (str(v) if isinstance(v, Path) else v)
+                           for k, v in vars(args).items()}}
+    (args.out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
+    print(table)
+    print(json.dumps({"pooled": pooled, "hybrid": hybrid_rows}))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,93 @@
+"""Offset estimators scored on recordings whose truth is known: the table of issue 20's
+"unseen flights" and "real IMU" checks.
+
+:func:`score_recordings` runs each named method (:mod:`uavcal_jax.pipeline.offset_estimators`)
+on each recording through :func:`~uavcal_jax.pipeline.predict_offset.predict_offset` (which
+hides the ground truth from the method and scores it afterwards) and keeps one row per
+recording and method. :func:`pooled_scores` pools the rows of each method over the recordings:
+the RMS error of every channel it estimates, per sensor (gyro rad/s, accel m/s^2 pooled over
+their axes, :func:`uavcal_jax.calib.metrics.sensor_rmse`) and the sign F1 of Avola et al.
+(eq. 19-21, :func:`uavcal_jax.calib.metrics.calibration_metrics`), beside the same figures of
+*no correction* (the estimate 0: its error is the truth itself).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from uavcal_jax.calib.metrics import calibration_metrics, sensor_rmse
+from uavcal_jax.pipeline.offset_estimate import SIX_CHANNELS
+from uavcal_jax.pipeline.predict_offset import predict_offset
+
+__all__ = ["NO_CORRECTION", "pooled_scores", "score_recordings"]
+
+#: The name of the do-nothing baseline in :func:`pooled_scores`.
+NO_CORRECTION = "no correction"
+
+
+def score_recordings(recordings: Iterable[str | Path], methods: Iterable[str], *,
+                     options: Mapping[str, Any] | None = None, progress: bool = False
+                     ) -> list[dict]:
+    """One row per recording and method: ``recording``, ``method``, ``channels``, ``offset``
+    and ``true`` (in those channels), ``error`` and ``seconds``. Recordings whose truth is
+    unknown (no ``true``) are scored ``None``.
+
+    Args:
+        recordings: EuRoC/ASL folders (or bags) with ground truth, e.g. simulated ones.
+        methods: registered method names.
+        options: per method, its options (default: the method's defaults).
+        progress: progress bars for long work.
+    """
+    import time
+
+    rows = []
+    methods = list(methods)
+    for recording in recordings:
+        for method in methods:
+            t0 = time.perf_counter()
+            summary, _ = predict_offset(recording, method, (options or {}).get(method),
+                                        progress=progress)
+            rows.append({"recording": str(recording), "method": method,
+                         "channels": summary["channels"], "offset": summary["offset"],
+                         "true": summary["true"], "error": summary["error"],
+                         "seconds": round(time.perf_counter() - t0, 2)})
+    return rows
+
+
+def _scores(pred: np.ndarray, true: np.ndarray, channels: list[str]) -> dict:
+    metrics = calibration_metrics(jnp.asarray(pred, jnp.float32), jnp.asarray(true, jnp.float32))
+    per_channel = np.sqrt(np.mean(np.square(pred - true), axis=0))
+    return {"channels": channels,
+            "rmse": {c: float(v) for c, v in zip(channels, per_channel, strict=True)},
+            **{f"{s}_rmse": v for s, v in sensor_rmse(per_channel.tolist(), channels).items()},
+            "sign_f1": float(metrics["sign_f1"]), "recordings": int(pred.shape[0])}
+
+
+def pooled_scores(rows: list[dict]) -> dict[str, dict]:
+    """Per method (in the rows' order), then :data:`NO_CORRECTION`: ``channels``, ``rmse``
+    per channel, ``gyro_rmse`` / ``accel_rmse`` (``None`` for a sensor it does not estimate),
+    ``sign_f1`` and ``recordings``, over the rows whose truth is known. No correction is
+    scored on every channel whose truth some method's row gives."""
+    out: dict[str, dict] = {}
+    truths: dict[str, dict[str, float]] = {}
+    for method in dict.fromkeys(r["method"] for r in rows):
+        scored = [r for r in rows if r["method"] == method and r["true"] is not None]
+        if not scored:
+            continue
+        channels = scored[0]["channels"]
+        pred = np.array([r["offset"] for r in scored], np.float64)
+        true = np.array([r["true"] for r in scored], np.float64)
+        out[method] = _scores(pred, true, channels)
+        for r in scored:
+            truths.setdefault(r["recording"], {}).update(zip(r["channels"], r["true"],
+                                                             strict=True))
+    channels = [c for c in SIX_CHANNELS if all(c in t for t in truths.values())]
+    if truths and channels:
+        true = np.array([[t[c] for c in channels] for t in truths.values()], np.float64)
+        out[NO_CORRECTION] = _scores(np.zeros_like(true), true, channels)
+    return out
