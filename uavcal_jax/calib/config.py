@@ -54,7 +54,7 @@ ACTIVATIONS = ("relu", "gelu")
 FRAME_TOKENS = ("learned", "first_patch")
 FRAME_ENCODER_DTYPES = ("float32", "bfloat16")
 #: Closed-form estimates the head can start from (``model.closed_form``).
-CLOSED_FORMS = ("none", "window_mean")
+CLOSED_FORMS = ("none", "window_mean", "rotation_ls")
 SIGN_TERMS = ("sign", "tanh")
 LOSS_UNITS = ("si", "standardized")
 #: Offset-injection protocols (``injection.protocol``).
@@ -121,7 +121,18 @@ class ModelConfig:
             offset) or ``"window_mean"`` (each window's mean IMU sample minus the training
             set's mean, the no-learning estimate that the paper protocol's offsets, drawn
             around the IMU's mean, make strong; needs ``standardize``, whose statistics it
-            uses).
+            uses) or ``"rotation_ls"`` (gyro channels: the least-squares gyro error of the
+            window's rotation residuals, ``-sum(dt_k^2 r_k) / sum(dt_k^2)`` over its valid
+            intervals, the mean ``-r_k`` for equal intervals (see ``motion_tokens``); other
+            channels, and a window without a valid interval: the mean offset; needs
+            ``motion_tokens`` and ``standardize``).
+        motion_tokens: add one rotation-residual token per frame interval to the fused
+            sequence (summed with ``T_v + T_i``, as eq. 10 sums those): ``r_k = Log(dR_gyro^T
+            dR_cam) / dt`` (rad/s, body frame), ``dR_gyro`` the interval's full-rate gyro
+            composed, ``dR_cam`` the body rotation seen by the camera (or the ground truth,
+            ``window.rotations``); ``r_k ~ -(gyro bias + offset)``. Needs windows cut with
+            ``window.rotations`` other than ``"none"``; the gyro is taken as the first three
+            IMU channels (a 3-channel model must be a gyro model).
     """
 
     d_model: int = 256
@@ -142,6 +153,7 @@ class ModelConfig:
     standardize: bool = True
     frame_encoder_dtype: str = "float32"
     closed_form: str = "none"
+    motion_tokens: bool = False
 
     def __post_init__(self) -> None:
         if self.d_model <= 0 or self.heads <= 0 or self.d_model % self.heads:
@@ -166,6 +178,9 @@ class ModelConfig:
         if self.closed_form != "none" and not self.standardize:
             raise ValueError(f"closed_form={self.closed_form!r} needs standardize (the "
                              "training statistics it subtracts)")
+        if self.closed_form == "rotation_ls" and not self.motion_tokens:
+            raise ValueError("closed_form='rotation_ls' needs motion_tokens (the rotation "
+                             "residuals it solves from)")
         if self.frame_encoder_dtype not in FRAME_ENCODER_DTYPES:
             raise ValueError(f"frame_encoder_dtype must be one of {FRAME_ENCODER_DTYPES}, "
                              f"got {self.frame_encoder_dtype!r}")

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -98,11 +98,23 @@ def mask_black_frames(ws: WindowSet, where: str | Path) -> WindowSet:
                                frame_index=np.where(hit, -1, ws.frame_index).astype(np.int32))
 
 
-def load_windows(dirs: Sequence[str | Path], config: WindowConfig) -> list[Windows]:
-    """Every window of every sequence found under ``dirs`` (:func:`find_sequences`)."""
+def load_windows(dirs: Sequence[str | Path], config: WindowConfig,
+                 rotation_source: Callable[[Path], Any] | None = None) -> list[Windows]:
+    """Every window of every sequence found under ``dirs`` (:func:`find_sequences`).
+
+    ``rotation_source``: under ``config.rotations == "visual"``, a callable ``(folder) ->``
+    the recording's relative camera rotations (a ``VisualRotations``-like tuple, see
+    :func:`~uavcal_jax.data.windows.make_windows`), e.g.
+    :func:`uavcal_jax.pipeline.motion_inputs.visual_rotation_source`; the caller supplies it
+    (calib does not import the VIO)."""
+    if config.rotations == "visual" and rotation_source is None:
+        raise DataError("window.rotations=visual needs a source of the camera's relative "
+                        "rotations (load_windows' rotation_source)")
     out = []
     for root in find_sequences(dirs):
-        ws = mask_black_frames(make_windows(read_euroc(root), config), root)
+        visual = rotation_source(Path(root)) if config.rotations == "visual" else None
+        ws = mask_black_frames(make_windows(read_euroc(root), config,
+                                            visual_rotations=visual), root)
         out.append(Windows(ws, np.arange(len(ws)), str(Path(root).absolute())))
     return out
 
@@ -119,7 +131,10 @@ def gather(parts: list[Windows], flat: np.ndarray, model: ModelConfig, sensor: s
     ``weight (B,)``: 1 for real windows, 0 for the copies of the first one that pad the batch
     to ``batch_size``. Under the ``total`` label (``InjectionConfig.target``) also ``bias
     (B, C)`` float32: the sensor's own bias over each window, the label's share besides the
-    injected offset (:func:`label_channels` of ``WindowSet.sensor_bias``)."""
+    injected offset (:func:`label_channels` of ``WindowSet.sensor_bias``). With
+    ``model.motion_tokens`` also the interval inputs ``gyro_seq``, ``dt_seq``, ``rot_cam``,
+    ``rot_mask`` (:meth:`~uavcal_jax.data.windows.WindowSet.motion`; ``S`` the largest
+    :attr:`~uavcal_jax.data.windows.WindowSet.interval_cap` of ``parts``)."""
     src, loc = _locate(parts)
     flat = np.asarray(flat, np.int64)
     n = flat.size
@@ -129,11 +144,23 @@ def gather(parts: list[Windows], flat: np.ndarray, model: ModelConfig, sensor: s
     wb = {k: np.concatenate([r[k] for r in rows]) for k in keys}
     out = model_batch(wb, model, sensor)
     out["weight"] = (np.arange(pad.size) < n).astype(np.float32)
+    if model.motion_tokens:
+        out.update(_motion(parts, src, loc, pad))
     if label == "total":
         _require_bias(parts)
         bias = np.concatenate([r["sensor_bias"] for r in rows])
         out["bias"] = label_channels(bias, model.imu_channels, sensor).astype(np.float32)
     return out
+
+
+def _motion(parts: list[Windows], src: np.ndarray, loc: np.ndarray, pad: np.ndarray) -> dict:
+    for p in parts:
+        if p.windows.frame_R is None:
+            raise DataError("model.motion_tokens needs frame orientations: set "
+                            "window.rotations=oracle or visual", p.source)
+    cap = max(p.windows.interval_cap for p in parts)
+    rows = [parts[src[i]].windows.motion([loc[i]], cap) for i in pad]
+    return {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
 
 
 def label_channels(six: np.ndarray, channels: int, sensor: str) -> np.ndarray:

@@ -32,6 +32,17 @@ head starts at zero: an untrained model predicts ``base``, the closed-form estim
 ``ModelConfig.closed_form``: the mean offset ``offset_mean`` (the paper's head), or the
 window's mean IMU sample minus ``imu_mean``, so that training learns a correction to it.
 
+**Motion tokens** (``ModelConfig.motion_tokens``, issue 20): the frame tokens each see one
+frame, but a gyro error shows only in how the camera's rotation over a frame interval differs
+from the integrated gyro. For each interval ``k`` (``motion`` inputs:
+:meth:`uavcal_jax.data.windows.WindowSet.motion`) :func:`rotation_residuals` gives
+``r_k = Log(dR_gyro,k^T dR_cam,k) / dt_k`` (rad/s, body frame; ``dR_gyro`` the interval's
+gyro samples composed, ``exp(w_1 dt_1) exp(w_2 dt_2) ...``), which is ``-(gyro error)`` for a
+constant error and exact rotations. ``Dense((-r_k - m) / s)`` (``m``, ``s``: the gyro
+channels' offset mean and standard deviation when standardised), zero on invalid intervals,
+is summed into the fused sequence with ``T_v + T_i``. ``closed_form="rotation_ls"`` starts
+the head at the rotation residuals' least-squares gyro error.
+
 The frame encoder depends on one frame only, so :meth:`Calibrator.encode_frames` and
 :meth:`Calibrator.predict_from_frame_tokens` split the model at the frame tokens: over a
 sequence each frame is encoded once and its token reused by every window holding it
@@ -53,9 +64,10 @@ from uavcal_jax.calib.config import ModelConfig
 from uavcal_jax.calib.dropout import Dropout
 from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encoder, dot_general_for
 from uavcal_jax.data.color import LUMA_WEIGHTS
+from uavcal_jax.geometry import so3
 
-__all__ = ["GRAY_WEIGHTS", "NORMALIZATION", "NORMALIZATION_NAMES", "Calibrator", "build_model",
-           "patchify"]
+__all__ = ["GRAY_WEIGHTS", "MOTION_KEYS", "NORMALIZATION", "NORMALIZATION_NAMES", "Calibrator",
+           "build_model", "compose_intervals", "patchify", "rotation_residuals"]
 
 F32 = jnp.float32
 
@@ -68,6 +80,41 @@ _embedding_init = nn.initializers.normal(stddev=0.02)
 #: The variable collection of the standardisation constants, and their names (each ``(C,)``).
 NORMALIZATION = "normalization"
 NORMALIZATION_NAMES = ("imu_mean", "imu_std", "offset_mean", "offset_std")
+
+#: The batch entries of the motion inputs (:meth:`uavcal_jax.data.windows.WindowSet.motion`).
+MOTION_KEYS = ("gyro_seq", "dt_seq", "rot_cam", "rot_mask")
+
+
+def compose_intervals(gyro_seq: jax.Array, dt_seq: jax.Array) -> jax.Array:
+    """``(..., 3, 3)`` the body rotation over each interval from its gyro samples
+    ``gyro_seq (..., S, 3)`` rad/s held for ``dt_seq (..., S)`` seconds (zero-order hold):
+    ``exp(w_1 dt_1) exp(w_2 dt_2) ... exp(w_S dt_S)`` (body frame at the interval's start
+    from its end; zero-duration padding is the identity)."""
+    steps = so3.exp(jnp.asarray(gyro_seq, F32) * jnp.asarray(dt_seq, F32)[..., None])
+    steps = jnp.moveaxis(steps, -3, 0)  # (S, ..., 3, 3)
+
+    def mul(acc, step):
+        return acc @ step, None
+
+    out, _ = jax.lax.scan(mul, steps[0], steps[1:])
+    return out
+
+
+def rotation_residuals(gyro_seq, dt_seq, rot_cam, rot_mask) -> tuple[jax.Array, jax.Array]:
+    """Rotation residuals ``r (..., 3)`` rad/s, body frame, and interval durations
+    ``dt (...)`` seconds (0 where ``rot_mask`` is False) of the motion inputs (shapes as
+    :meth:`uavcal_jax.data.windows.WindowSet.motion`): ``r_k = Log(dR_gyro^T rot_cam) / dt``
+    with ``dR_gyro`` = :func:`compose_intervals`; zero on invalid intervals. For gyro
+    samples ``w + e`` with a constant error ``e`` and exact ``rot_cam``, ``r = -e`` to first
+    order in ``e dt``."""
+    valid = jnp.asarray(rot_mask, bool)
+    dt = jnp.where(valid, jnp.sum(jnp.asarray(dt_seq, F32), axis=-1), 0.0)
+    d_gyro = compose_intervals(gyro_seq, dt_seq)
+    eye = jnp.eye(3, dtype=F32)
+    err = jnp.where(valid[..., None, None], jnp.swapaxes(d_gyro, -1, -2)
+                    @ jnp.asarray(rot_cam, F32), eye)
+    r = so3.log(err) / jnp.maximum(dt, 1e-9)[..., None]
+    return jnp.where(valid[..., None], r, 0.0), dt
 
 
 def patchify(frames: jax.Array, patch: tuple[int, int]) -> jax.Array:
@@ -182,6 +229,19 @@ class ImuReducer(nn.Module):
         return Encoder(c, name="imu_encoder")(x, mask, deterministic=deterministic)
 
 
+class MotionTokens(nn.Module):
+    """Rotation-residual tokens: ``z (B, n, 3)`` (standardised ``-r``) -> ``(B, n, d)``,
+    zero where ``valid (B, n)`` is False."""
+
+    config: ModelConfig
+
+    @nn.compact
+    def __call__(self, z, valid):
+        x = nn.Dense(self.config.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
+                     name="linear")(z.astype(F32))
+        return x * valid[..., None].astype(F32)
+
+
 class NoisePredictor(nn.Module):
     """NPB (eq. 10-11): ``T_v + T_i (B, n, d)`` -> offsets ``(B, C)``."""
 
@@ -205,9 +265,10 @@ class NoisePredictor(nn.Module):
 class Calibrator(nn.Module):
     """The whole model; see the module docstring.
 
-    ``__call__(frames, imu, mask, deterministic=True) -> offsets (B, C)`` with ``frames``
-    ``(B, n, h, w)`` / ``(B, n, 3, h, w)`` (ignored, may be ``None``, when ``use_video`` is
-    False), ``imu (B, n, C)`` and ``mask (B, n)`` bool (``True`` on real frames).
+    ``__call__(frames, imu, mask, motion=None, deterministic=True) -> offsets (B, C)`` with
+    ``frames`` ``(B, n, h, w)`` / ``(B, n, 3, h, w)`` (ignored, may be ``None``, when
+    ``use_video`` is False), ``imu (B, n, C)``, ``mask (B, n)`` bool (``True`` on real
+    frames) and, with ``motion_tokens``, ``motion`` (:data:`MOTION_KEYS`).
     Dropout draws from the ``"dropout"`` rng stream when ``deterministic`` is False.
     """
 
@@ -219,6 +280,8 @@ class Calibrator(nn.Module):
             self.frame_encoder = FrameEncoder(c)
             self.video_temporal = VideoTemporal(c)
         self.imu_reducer = ImuReducer(c)
+        if c.motion_tokens:
+            self.motion_tokens = MotionTokens(c)
         self.noise_predictor = NoisePredictor(c)
         if c.standardize:
             fills = (jnp.zeros, jnp.ones, jnp.zeros, jnp.ones)
@@ -240,41 +303,67 @@ class Calibrator(nn.Module):
         tokens = self.frame_encoder(flat, flat_valid, deterministic=deterministic)
         return tokens.reshape(lead + (tokens.shape[-1],))
 
-    def predict_from_frame_tokens(self, frame_tokens, imu, mask, *,
+    def predict_from_frame_tokens(self, frame_tokens, imu, mask, motion=None, *,
                                   deterministic: bool = True) -> jax.Array:
         """Offsets ``(B, C)`` from frame tokens ``(B, n, d)`` (``None`` for the IMU-only
-        model), IMU ``(B, n, C)`` and ``mask (B, n)``."""
+        model), IMU ``(B, n, C)``, ``mask (B, n)`` and, with ``motion_tokens``, ``motion``:
+        a mapping holding :data:`MOTION_KEYS` (the gyro in ``gyro_seq`` carrying the same
+        error as ``imu``)."""
+        c = self.config
         mask = jnp.asarray(mask, bool)
         imu = jnp.asarray(imu, F32)
         raw = imu
-        if self.config.standardize:
+        norm = None
+        if c.standardize:
             norm = {k: v.value for k, v in self.normalization.items()}
             imu = (imu - norm["imu_mean"]) / norm["imu_std"]
         tokens = self.imu_reducer(imu, mask, deterministic=deterministic)
-        if self.config.use_video:
+        if c.use_video:
             if frame_tokens is None:
                 raise ValueError("the video model needs frame tokens")
             tokens = tokens + self.video_temporal(frame_tokens, mask,
                                                   deterministic=deterministic)
+        residual = None
+        if c.motion_tokens:
+            if motion is None or any(k not in motion for k in MOTION_KEYS):
+                raise ValueError(f"model.motion_tokens needs the motion inputs {MOTION_KEYS} "
+                                 "(windows cut with window.rotations oracle or visual)")
+            r, dt = rotation_residuals(*(motion[k] for k in MOTION_KEYS))
+            valid = jnp.asarray(motion["rot_mask"], bool) & mask
+            residual = (r, jnp.where(valid, dt, 0.0))
+            m, s = (jnp.zeros(3, F32), jnp.ones(3, F32)) if norm is None else (
+                norm["offset_mean"][:3], norm["offset_std"][:3])
+            tokens = tokens + self.motion_tokens((-r - m) / s, valid)
         out = self.noise_predictor(tokens, mask, deterministic=deterministic)
-        if self.config.standardize:
-            out = self._closed_form(raw, mask, norm) + norm["offset_std"] * out
+        if c.standardize:
+            out = self._closed_form(raw, mask, norm, residual) + norm["offset_std"] * out
         return out
 
-    def _closed_form(self, imu, mask, norm) -> jax.Array:
+    def _closed_form(self, imu, mask, norm, residual=None) -> jax.Array:
         """``(B, C)`` the estimate the standardised head corrects (``closed_form``): the
-        mean offset, or each window's mean sample (real slots) minus the training mean."""
+        mean offset, each window's mean sample (real slots) minus the training mean, or
+        (``rotation_ls``) the gyro error that best explains the rotation residuals:
+        ``argmin_e sum_k |dt_k r_k + dt_k e|^2 = -sum(dt_k^2 r_k) / sum(dt_k^2)``."""
+        if self.config.closed_form == "rotation_ls":
+            base = jnp.broadcast_to(norm["offset_mean"], imu.shape[:-2] + imu.shape[-1:])
+            r, dt = residual
+            w = jnp.square(dt)[..., None]
+            total = jnp.sum(w, axis=-2)
+            gyro = -jnp.sum(w * r, axis=-2) / jnp.maximum(total, 1e-12)
+            gyro = jnp.where(total > 0, gyro, base[..., :3])
+            return jnp.concatenate([gyro, base[..., 3:]], axis=-1)
         if self.config.closed_form == "window_mean":
             w = mask.astype(F32)[..., None]
             mean = jnp.sum(imu * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
             return mean - norm["imu_mean"]
         return jnp.broadcast_to(norm["offset_mean"], imu.shape[:-2] + imu.shape[-1:])
 
-    def __call__(self, frames, imu, mask, *, deterministic: bool = True) -> jax.Array:
+    def __call__(self, frames, imu, mask, motion=None, *,
+                 deterministic: bool = True) -> jax.Array:
         frame_tokens = None
         if self.config.use_video:
             frame_tokens = self.encode_frames(frames, mask, deterministic=deterministic)
-        return self.predict_from_frame_tokens(frame_tokens, imu, mask,
+        return self.predict_from_frame_tokens(frame_tokens, imu, mask, motion,
                                               deterministic=deterministic)
 
 

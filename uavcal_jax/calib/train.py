@@ -4,7 +4,10 @@ A batch is a dict of model inputs (:func:`uavcal_jax.calib.batch.model_batch`): 
 ``(B, T, h, w)`` / ``(B, T, 3, h, w)`` (absent for the IMU-only model), *clean* ``imu``
 ``(B, T, C)``, ``mask (B, T)`` bool, optionally ``weight (B,)`` (0 on padding windows of a
 last, short batch), for evaluation the injected ``offset (B, C)``, and under the ``total``
-label the sensor's own ``bias (B, C)``, which the label adds to the offset.
+label the sensor's own ``bias (B, C)``, which the label adds to the offset. With
+``ModelConfig.motion_tokens`` the batch also holds the clean full-rate motion inputs
+(:data:`uavcal_jax.calib.model.MOTION_KEYS`); the steps add the offset's gyro channels to
+every sample of ``gyro_seq`` as to ``imu`` (:func:`_motion`).
 
 - :func:`train_step` ``(state, batch, key) -> (state, metrics)``: splits ``key`` into an
   offset key and a dropout key, draws a new offset per window by the configured protocol
@@ -45,7 +48,7 @@ from uavcal_jax.calib.inject import (
 )
 from uavcal_jax.calib.loss import calibration_loss
 from uavcal_jax.calib.metrics import metric_sums
-from uavcal_jax.calib.model import NORMALIZATION, Calibrator
+from uavcal_jax.calib.model import MOTION_KEYS, NORMALIZATION, Calibrator
 
 __all__ = [
     "CalibState",
@@ -132,9 +135,26 @@ def _inputs(config: CalibConfig, batch: dict):
             jnp.asarray(batch["mask"], bool))
 
 
+def _motion(config: CalibConfig, batch: dict, offsets: jax.Array | None) -> dict | None:
+    """The model's motion inputs (``None`` without ``motion_tokens``) with the gyro channels
+    of ``offsets (B, C)`` (``None``: clean) added to every gyro sample; zero-duration
+    padding samples do not move the composed rotation, so they need no mask."""
+    if not config.model.motion_tokens:
+        return None
+    if config.model.imu_channels == 3 and config.injection.single_sensor != "gyro":
+        raise ValueError("model.motion_tokens reads the gyro: a 3-channel model needs "
+                         "injection.single_sensor=gyro")
+    motion = {k: batch[k] for k in MOTION_KEYS}
+    if offsets is not None:
+        gyro = jnp.asarray(motion["gyro_seq"], jnp.float32)
+        motion["gyro_seq"] = gyro + jnp.asarray(offsets, jnp.float32)[:, None, None, :3]
+    return motion
+
+
 def _init(config: CalibConfig, key: jax.Array, sample: dict, stats: ImuStats) -> CalibState:
     frames, imu, mask = _inputs(config, sample)
-    variables = Calibrator(config.model).init({"params": key}, frames, imu, mask)
+    variables = Calibrator(config.model).init({"params": key}, frames, imu, mask,
+                                              _motion(config, sample, None))
     params = variables["params"]
     return CalibState(step=jnp.zeros((), jnp.int32), params=params,
                       batch_stats=variables.get("batch_stats", {}),
@@ -183,18 +203,20 @@ def _weight(batch: dict, size: int) -> jax.Array:
     return jnp.ones(size, jnp.float32) if w is None else jnp.asarray(w, jnp.float32)
 
 
-def _apply(state: CalibState, params, frames, imu, mask, *, train: bool, key=None):
+def _apply(state: CalibState, params, frames, imu, mask, *, train: bool, key=None,
+           motion=None):
     """Predictions ``(B, C)`` and the new batch statistics."""
     model = state.model
     variables = state.replace(params=params).variables()
     if not train:
-        return model.apply(variables, frames, imu, mask), state.batch_stats
+        return model.apply(variables, frames, imu, mask, motion), state.batch_stats
     rngs = {"dropout": key}
     if state.batch_stats:
-        pred, updates = model.apply(variables, frames, imu, mask, deterministic=False,
+        pred, updates = model.apply(variables, frames, imu, mask, motion, deterministic=False,
                                     rngs=rngs, mutable=["batch_stats"])
         return pred, updates["batch_stats"]
-    return model.apply(variables, frames, imu, mask, deterministic=False, rngs=rngs), {}
+    return model.apply(variables, frames, imu, mask, motion, deterministic=False,
+                       rngs=rngs), {}
 
 
 def _offset_scale(state: CalibState) -> jax.Array:
@@ -216,10 +238,12 @@ def _train_step(state: CalibState, batch: dict, key: jax.Array):
     k_offset, k_dropout = jax.random.split(key)
     offsets = training_offsets(k_offset, config.injection, state.imu_stats, clean.shape[0])
     imu = inject(clean, offsets, mask)
+    motion = _motion(config, batch, offsets)
     target = _label(batch, offsets)
 
     def loss_fn(params):
-        pred, stats = _apply(state, params, frames, imu, mask, train=True, key=k_dropout)
+        pred, stats = _apply(state, params, frames, imu, mask, train=True, key=k_dropout,
+                             motion=motion)
         loss, terms = calibration_loss(pred, target, config.loss, weight,
                                        _offset_scale(state))
         return loss, (terms, stats, pred)
@@ -242,7 +266,7 @@ def _eval_step(state: CalibState, batch: dict):
     weight = _weight(batch, clean.shape[0])
     offsets = jnp.asarray(batch["offset"], jnp.float32)
     pred, _ = _apply(state, state.params, frames, inject(clean, offsets, mask), mask,
-                     train=False)
+                     train=False, motion=_motion(config, batch, offsets))
     target = _label(batch, offsets)
     loss, terms = calibration_loss(pred, target, config.loss, weight, _offset_scale(state))
     return {"loss": loss, **terms, "sums": metric_sums(pred, target, weight), "pred": pred}

@@ -250,13 +250,22 @@ def _aggregate(rows: list[dict]) -> dict:
     return {k: v for k, v in mean_std_of(rows, HEADLINE).items() if v is not None}
 
 
+def _rotation_source(window):
+    """The camera rotations' source ``load_windows`` needs under ``window.rotations=visual``
+    (the VIO front end's, cached beside each recording), else ``None``."""
+    if window.rotations != "visual":
+        return None
+    from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
+    return visual_rotation_source
+
+
 def run_train(args) -> int:
     from uavcal_jax.calib.data import load_windows
     from uavcal_jax.calib.trials import run_trials, validation_trials
 
     run = train_configs(args)
     enable_compilation_cache()
-    parts = load_windows(args.data, run.window)
+    parts = load_windows(args.data, run.window, _rotation_source(run.window))
     out = Path(args.out)
     results = run_trials(run.calib, run.loop, validation_trials(parts, run.loop), out,
                          resume=args.resume, progress=not args.json,
@@ -302,7 +311,8 @@ def run_eval(args) -> int:
     for run_dir in trial_dirs(args.run):
         run = resolve_configs(args.set, preset=read_run_config(run_dir),
                               arguments={"loop.val_offsets": args.offsets})
-        parts = (load_windows(args.data, run.window) if args.data
+        parts = (load_windows(args.data, run.window, _rotation_source(run.window))
+                 if args.data
                  else validation_windows(run_dir, run.window, cache))
         if not parts:
             raise DataError("no validation windows to evaluate on: give --data", run_dir)

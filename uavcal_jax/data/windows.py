@@ -28,6 +28,20 @@ Windows with fewer than ``min_valid_fraction * T`` real frames are skipped.
 ``frame_step = k`` keeps every ``k``-th slot of each window (its frames and their nearest IMU
 samples, at ``rate / k``; ``T = ceil(round(duration * rate) / k)``): a cheaper model input
 over the same span. Frames no window keeps are not decoded.
+
+Motion inputs (issue 20; off by default, nothing changes then):
+
+- ``WindowConfig.imu_sampling = "interval_mean"``: each used frame gets the mean of the IMU
+  samples ``t_f - frame_step * P < t <= t_f`` (since the previous frame slot's nominal time)
+  instead of the nearest sample (a frame with no sample there keeps the nearest one).
+- ``WindowConfig.rotations``: ``WindowSet.frame_R (F, 3, 3)``, a body (IMU-frame)
+  orientation per used frame, world-from-body up to one unknown rotation per *segment*
+  (``frame_R_segment (F,)``, ``-1``: no orientation), so that the body rotation from frame
+  ``j`` to frame ``i`` of one segment is ``frame_R[i].T @ frame_R[j]``. ``"oracle"``: the
+  ground truth's orientation slerped at the frame times (one segment; frames outside the
+  ground truth: ``-1``). ``"visual"``: the camera's relative rotations (``make_windows``'
+  ``visual_rotations``) chained along the stream; a frame with no valid pair from an earlier
+  frame starts a new segment, so intervals across a failed pair are invalid.
 """
 
 from __future__ import annotations
@@ -39,11 +53,16 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from uavcal_jax.data.sequence import FrameStream, Sequence
 from uavcal_jax.data.timing import measured_rate_hz
 from uavcal_jax.data.true_offset import sensor_bias
 from uavcal_jax.errors import DataError
+
+#: ``WindowConfig.rotations`` values and ``WindowConfig.imu_sampling`` values.
+ROTATION_SOURCES = ("none", "oracle", "visual")
+IMU_SAMPLINGS = ("nearest", "interval_mean")
 
 
 @dataclass(frozen=True)
@@ -60,6 +79,11 @@ class WindowConfig:
         min_valid_fraction: skip windows with fewer real frames than this fraction of ``T``.
         frame_step: keep every ``frame_step``-th frame slot (1: every frame).
         workers: threads used to decode frames (``None``: all CPUs).
+        rotations: body orientations per frame (module docstring): ``"none"``, ``"oracle"``
+            (ground truth) or ``"visual"`` (the camera's relative rotations, given to
+            :func:`make_windows`).
+        imu_sampling: ``"nearest"`` (the paper: the IMU sample nearest each frame) or
+            ``"interval_mean"`` (the mean of the samples since the previous frame slot).
     """
 
     duration: float = 10.0
@@ -71,8 +95,16 @@ class WindowConfig:
     min_valid_fraction: float = 0.5
     frame_step: int = 1
     workers: int | None = None
+    rotations: str = "none"
+    imu_sampling: str = "nearest"
 
     def __post_init__(self) -> None:
+        if self.rotations not in ROTATION_SOURCES:
+            raise ValueError(f"rotations must be one of {ROTATION_SOURCES}, "
+                             f"got {self.rotations!r}")
+        if self.imu_sampling not in IMU_SAMPLINGS:
+            raise ValueError(f"imu_sampling must be one of {IMU_SAMPLINGS}, "
+                             f"got {self.imu_sampling!r}")
         if self.duration <= 0 or self.stride <= 0:
             raise ValueError("duration and stride must be positive")
         if self.frame_step < 1:
@@ -161,6 +193,11 @@ class WindowSet:
             (gyro rad/s xyz, accel m/s^2 xyz; :func:`uavcal_jax.data.true_offset.sensor_bias`),
             the sensor's own share of the ``total`` label; ``None`` when the recording's ground
             truth has no bias columns.
+        frame_imu: (F, 6) float64 gyro and accel of each used frame under ``interval_mean``
+            sampling (``None``: the nearest sample, ``imu_index``).
+        frame_R: (F, 3, 3) float64 body orientation per used frame (module docstring), or
+            ``None`` when ``config.rotations`` is ``"none"``.
+        frame_R_segment: (F,) int64 segment of each ``frame_R`` (``-1``: none).
     """
 
     config: WindowConfig
@@ -177,6 +214,14 @@ class WindowSet:
     imu_range: np.ndarray
     sensor_bias: np.ndarray | None = None
     meta: dict = field(default_factory=dict, compare=False)
+    frame_imu: np.ndarray | None = None
+    frame_R: np.ndarray | None = None
+    frame_R_segment: np.ndarray | None = None
+
+    @property
+    def frame_R_valid(self) -> np.ndarray | None:
+        """(F,) bool, the frame has an orientation (``None`` without ``frame_R``)."""
+        return None if self.frame_R_segment is None else self.frame_R_segment >= 0
 
     def __len__(self) -> int:
         return int(self.frame_index.shape[0])
@@ -230,17 +275,80 @@ class WindowSet:
                                    frame_mask=self.frame_mask[idx], imu_range=self.imu_range[idx],
                                    sensor_bias=bias)
 
+    @property
+    def interval_cap(self) -> int:
+        """Static bound ``S`` on the IMU samples of one frame interval in :meth:`motion`:
+        the frame interval over the median IMU period, plus 2 (the sample running at the
+        interval's start, and jitter)."""
+        period_ns = 1e9 / float(self.meta["rate_hz"]) * int(self.meta.get("frame_step", 1))
+        imu_dt = float(np.median(np.diff(self.imu_t_ns))) if self.imu_t_ns.size > 1 else 1.0
+        return int(np.ceil(period_ns / max(imu_dt, 1.0))) + 2
+
+    def motion(self, indices, cap: int | None = None) -> dict[str, np.ndarray]:
+        """Per frame interval inputs of windows ``indices`` (needs ``frame_R``). Interval
+        ``k`` of a window is ``[t_{k-1}, t_k)`` between its slots ``k - 1`` and ``k``
+        (slot 0 has none: all zero, invalid).
+
+        Returns:
+            ``gyro_seq (B, T, S, 3)`` float32, rad/s: the gyro samples that run during the
+            interval (zero-order hold: sample ``i`` holds over ``[t_i, t_{i+1})``, from the
+            one running at ``t_{k-1}`` to the last one starting before ``t_k``), zero-padded
+            to ``S = cap`` (default :attr:`interval_cap`); ``dt_seq (B, T, S)`` float32,
+            seconds: each sample's time inside the interval (they sum to ``t_k - t_{k-1}``;
+            0 on padding); ``rot_cam (B, T, 3, 3)`` float32, the body rotation of the
+            interval (body frame at ``t_{k-1}`` from ``t_k``: ``frame_R[i].T @
+            frame_R[j]``; identity where invalid); ``rot_mask (B, T)`` bool, both slots real,
+            both orientations of one segment and at most ``S`` samples.
+        """
+        if self.frame_R is None:
+            raise ValueError("these windows have no frame orientations "
+                             "(WindowConfig.rotations='none')")
+        S = self.interval_cap if cap is None else int(cap)
+        indices = np.asarray(indices, np.int64).reshape(-1)
+        idx, mask = self.frame_index[indices], self.frame_mask[indices]
+        safe = np.maximum(idx, 0)
+        t = self.frame_t_ns[safe]
+        seg = np.where(mask, self.frame_R_segment[safe], -1)
+        valid = np.zeros(mask.shape, bool)
+        valid[:, 1:] = (seg[:, 1:] >= 0) & (seg[:, 1:] == seg[:, :-1])
+        a = np.concatenate([t[:, :1], t[:, :-1]], axis=1)  # interval start (slot 0: empty)
+        b = np.where(valid, t, a)
+        imu_t = self.imu_t_ns
+        n = imu_t.size
+        first = np.clip(np.searchsorted(imu_t, a, side="right") - 1, 0, n - 1)
+        last = np.searchsorted(imu_t, b, side="left") - 1
+        valid &= (last - first + 1 <= S) & (last >= first)
+        j = first[..., None] + np.arange(S)  # (B, T, S)
+        real = valid[..., None] & (j <= last[..., None])
+        jc = np.minimum(j, n - 1)
+        t_end = np.where(jc + 1 < n, imu_t[np.minimum(jc + 1, n - 1)], np.iinfo(np.int64).max)
+        lo = np.maximum(imu_t[jc], a[..., None])
+        hi = np.minimum(t_end, b[..., None])
+        dt = np.where(real, np.maximum(hi - lo, 0), 0) * 1e-9
+        gyro = np.where(real[..., None], self.gyro[jc], 0.0)
+        R = self.frame_R[safe]
+        rel = np.einsum("btji,btjk->btik", R[:, :-1], R[:, 1:])
+        rot = np.broadcast_to(np.eye(3), idx.shape + (3, 3)).copy()
+        rot[:, 1:] = rel
+        rot[~valid] = np.eye(3)
+        return {"gyro_seq": gyro.astype(np.float32), "dt_seq": dt.astype(np.float32),
+                "rot_cam": rot.astype(np.float32), "rot_mask": valid}
+
     def _bias(self, indices: np.ndarray) -> dict:
         return {} if self.sensor_bias is None else {"sensor_bias": self.sensor_bias[indices]}
 
     def _side(self, idx: np.ndarray, mask: np.ndarray, squeeze: bool = False) -> dict:
         safe = np.maximum(idx, 0)
         imu = self.imu_index[safe]
+        if self.frame_imu is None:
+            gyro, accel = self.gyro[imu], self.accel[imu]
+        else:
+            gyro, accel = self.frame_imu[safe, :3], self.frame_imu[safe, 3:]
         out = {
             "mask": mask.copy(),
             "t_ns": np.where(mask, self.frame_t_ns[safe], -1),
-            "gyro": np.where(mask[..., None], self.gyro[imu], 0.0),
-            "accel": np.where(mask[..., None], self.accel[imu], 0.0),
+            "gyro": np.where(mask[..., None], gyro, 0.0),
+            "accel": np.where(mask[..., None], accel, 0.0),
             "imu_t_ns": np.where(mask, self.imu_t_ns[imu], -1),
         }
         if squeeze:
@@ -261,13 +369,80 @@ def window_starts(t_lo: int, t_hi: int, duration_ns: int, stride_ns: int,
     return t_lo + np.arange(span // stride_ns + 1, dtype=np.int64) * stride_ns
 
 
+def interval_mean_imu(frame_t_ns: np.ndarray, span_ns: int, imu_t_ns: np.ndarray,
+                      imu: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+    """``(F, C)`` the mean of the IMU rows ``imu (N, C)`` with ``t_f - span_ns < t <= t_f``
+    for each frame time ``t_f`` (``frame_t_ns (F,)``); a frame with no such sample takes
+    its ``nearest (F,)`` row. Float64 prefix sums."""
+    csum = np.concatenate([np.zeros((1, imu.shape[1])), np.cumsum(imu, axis=0)])
+    lo = np.searchsorted(imu_t_ns, frame_t_ns - span_ns, side="right")
+    hi = np.searchsorted(imu_t_ns, frame_t_ns, side="right")
+    count = hi - lo
+    mean = (csum[hi] - csum[lo]) / np.maximum(count, 1)[:, None]
+    return np.where((count > 0)[:, None], mean, imu[nearest])
+
+
+def oracle_orientations(ground_truth, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ground truth's body-to-world rotation ``(F, 3, 3)`` slerped at ``t_ns (F,)`` and
+    the segment per frame (``0``; ``-1`` outside the ground truth's time span: identity)."""
+    t_ns = np.asarray(t_ns, np.int64)
+    R = np.broadcast_to(np.eye(3), (t_ns.size, 3, 3)).copy()
+    seg = np.full(t_ns.size, -1, np.int64)
+    if ground_truth is None or len(ground_truth) < 2:
+        return R, seg
+    gt_t = np.asarray(ground_truth.t_ns, np.int64)
+    q = np.asarray(ground_truth.quaternion, np.float64)
+    inside = (t_ns >= gt_t[0]) & (t_ns <= gt_t[-1])
+    if inside.any():
+        rot = Rotation.from_quat(q[:, [1, 2, 3, 0]])  # scipy: x, y, z, w
+        # Relative times in float64 seconds: absolute nanoseconds lose precision.
+        slerp = Slerp((gt_t - gt_t[0]) * 1e-9, rot)
+        R[inside] = slerp((t_ns[inside] - gt_t[0]) * 1e-9).as_matrix()
+        seg[inside] = 0
+    return R, seg
+
+
+def chain_orientations(t_ns: np.ndarray, visual_rotations) -> tuple[np.ndarray, np.ndarray]:
+    """Orientations ``(F, 3, 3)`` and segments ``(F,)`` of the frames at ``t_ns (F,)``
+    (ascending) from relative rotations ``visual_rotations`` (fields ``t0_ns``, ``t1_ns``,
+    ``R`` body frame at ``t0`` from ``t1``, ``valid``): a frame reached by a valid pair
+    from an earlier frame of a segment continues it (``R_1 = R_0 @ R_pair``), any other
+    frame starts a new segment at the identity."""
+    t_ns = np.asarray(t_ns, np.int64)
+    pairs = {}
+    for t0, t1, R, ok in zip(np.asarray(visual_rotations.t0_ns, np.int64),
+                             np.asarray(visual_rotations.t1_ns, np.int64),
+                             np.asarray(visual_rotations.R, np.float64),
+                             np.asarray(visual_rotations.valid, bool), strict=True):
+        if ok and t0 < t1:
+            pairs.setdefault(int(t1), (int(t0), R))
+    out = np.broadcast_to(np.eye(3), (t_ns.size, 3, 3)).copy()
+    seg = np.zeros(t_ns.size, np.int64)
+    where = {}
+    n_seg = 0
+    for k, t in enumerate(t_ns.tolist()):
+        link = pairs.get(t)
+        j = where.get(link[0]) if link is not None else None
+        if j is not None:
+            out[k] = out[j] @ link[1]
+            seg[k] = seg[j]
+        else:
+            seg[k] = n_seg
+            n_seg += 1
+        where[t] = k
+    return out, seg
+
+
 def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
-                 frames: np.ndarray | None = None) -> WindowSet:
+                 frames: np.ndarray | None = None, visual_rotations=None) -> WindowSet:
     """Cut ``sequence`` into windows (see the module docstring).
 
     Args:
         frames: optional pre-loaded frames of the whole camera stream (one per frame, already
             at ``config.size``); by default they are loaded from the stream.
+        visual_rotations: under ``config.rotations == "visual"``, the camera's relative body
+            rotations (a ``VisualRotations``-like tuple with ``t0_ns``, ``t1_ns`` (K,),
+            ``R`` (K, 3, 3) body frame at ``t0`` from ``t1``, ``valid`` (K,)).
 
     Raises:
         DataError: no IMU, no such camera, or the sequence is shorter than one window.
@@ -334,6 +509,22 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
     imu_range = np.stack([np.searchsorted(imu.t_ns, starts, side="left"),
                           np.searchsorted(imu.t_ns, starts + duration_ns, side="left")], axis=1)
     bias = [sensor_bias(sequence.ground_truth, s, s + duration_ns - 1) for s in starts]
+    frame_imu = None
+    if config.imu_sampling == "interval_mean":
+        frame_imu = interval_mean_imu(frame_t, config.frame_step * period_ns, imu.t_ns,
+                                      np.concatenate([imu.gyro, imu.accel], axis=1), imu_index)
+    frame_R = frame_seg = None
+    if config.rotations == "oracle":
+        if sequence.ground_truth is None:
+            raise DataError("rotations='oracle' needs the recording's ground truth", where)
+        frame_R, frame_seg = oracle_orientations(sequence.ground_truth, frame_t)
+    elif config.rotations == "visual":
+        if visual_rotations is None:
+            raise DataError("rotations='visual' needs the camera's relative rotations "
+                            "(make_windows' visual_rotations)", where)
+        # Chain along every frame of the stream (a used frame's predecessor may be unused).
+        all_R, all_seg = chain_orientations(t_cam, visual_rotations)
+        frame_R, frame_seg = all_R[used], all_seg[used]
     return WindowSet(
         config=config, name=sequence.name, frames=frame_arr, frame_t_ns=frame_t,
         imu_index=imu_index, imu_t_ns=imu.t_ns, gyro=imu.gyro, accel=imu.accel,
@@ -342,4 +533,5 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
         sensor_bias=None if any(b is None for b in bias) else np.stack(bias),
         meta={"camera": config.camera, "rate_hz": rate, "frames_per_window": T,
               "frame_step": config.frame_step},
+        frame_imu=frame_imu, frame_R=frame_R, frame_R_segment=frame_seg,
     )
