@@ -87,7 +87,8 @@ MODULE_SECONDS = {
     "test_cli_calib.py": 300, "test_cli_detect.py": 250, "test_detect_train.py": 200,
     "test_vio_flight.py": 160, "test_cli_simulate.py": 150, "test_vio_estimator.py": 120,
     "test_pipeline_offsets.py": 150, "test_vio_implicit.py": 80, "test_calib_train.py": 60,
-    "test_visual_rotation.py": 60, "test_calib_loop.py": 60, "test_sim_hybrid.py": 30,
+    "test_visual_rotation.py": 60, "test_calib_loop.py": 60, "test_calib_motion.py": 40,
+    "test_sim_hybrid.py": 30,
 }
 
 
