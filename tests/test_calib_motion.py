@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from uavcal_jax.calib.config import CalibConfig, ModelConfig
 from uavcal_jax.calib.data import Windows, gather, load_windows
 from uavcal_jax.calib.model import Calibrator, rotation_residuals
+from uavcal_jax.calib.predict import predict_sequence
 from uavcal_jax.calib.train import create_train_state, eval_step, train_step
 from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.sequence import (
@@ -218,6 +219,10 @@ def test_untrained_rotation_ls_model_predicts_the_gyro_error(parallel, state):
     direct = jax.jit(Calibrator(CONFIG.model).apply)(
         state.variables(), None, batch["imu"] + offset, batch["mask"], motion)
     np.testing.assert_allclose(np.asarray(direct), pred, atol=1e-6)
+    # and calib predict's path over the sequence (frame tokens reused, motion per window)
+    parts, _ = parallel
+    seq_pred = predict_sequence(state, parts[0].windows, inject_offset=offset)
+    np.testing.assert_allclose(seq_pred.per_window, pred, atol=1e-5)
 
 
 def test_train_step_with_motion_tokens_lowers_the_loss(parallel, state):

@@ -28,9 +28,9 @@ def _encode(model: Calibrator, variables, frames):
 
 
 @functools.partial(jax.jit, static_argnames=("model",))
-def _predict(model: Calibrator, variables, tokens, frame_index, frame_mask, imu):
+def _predict(model: Calibrator, variables, tokens, frame_index, frame_mask, imu, motion):
     gathered = None if tokens is None else tokens[jnp.maximum(frame_index, 0)]
-    return model.apply(variables, gathered, imu, frame_mask,
+    return model.apply(variables, gathered, imu, frame_mask, motion,
                        method=Calibrator.predict_from_frame_tokens)
 
 
@@ -50,9 +50,10 @@ def encode_frames(model: Calibrator, variables, frames, chunk: int = 64) -> jax.
 
 
 def predict_windows(model: Calibrator, variables, frame_tokens, frame_index, frame_mask,
-                    imu) -> jax.Array:
+                    imu, motion=None) -> jax.Array:
     """Offsets ``(W, C)`` of windows given by ``frame_index (W, T)`` into ``frame_tokens
-    (F, d)`` (``None`` for the IMU-only model), ``frame_mask (W, T)`` and the windows' IMU
-    samples ``(W, T, C)``."""
+    (F, d)`` (``None`` for the IMU-only model), ``frame_mask (W, T)``, the windows' IMU
+    samples ``(W, T, C)`` and, for a model with ``motion_tokens``, their motion inputs
+    (:meth:`uavcal_jax.data.windows.WindowSet.motion`, the gyro as recorded)."""
     return _predict(model, variables, frame_tokens, jnp.asarray(frame_index),
-                    jnp.asarray(frame_mask, bool), jnp.asarray(imu, jnp.float32))
+                    jnp.asarray(frame_mask, bool), jnp.asarray(imu, jnp.float32), motion)

@@ -16,8 +16,9 @@ recording's folder, where the offset a simulated recording carries (``sim_config
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -123,14 +124,21 @@ def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
         imu = inject(imu, offset, mask)
     frames = frames_to_model(windows.frames, model_cfg.rgb) if model_cfg.use_video else None
     index = np.asarray(windows.frame_index)
+    motion = None
+    if model_cfg.motion_tokens:
+        motion = windows.motion(all_idx)
+        if inject_offset is not None:  # the same gyro offset in every full-rate sample
+            shift = np.asarray(inject_offset, np.float32).reshape(-1)[:3]
+            motion["gyro_seq"] = motion["gyro_seq"] + shift
     per_seed = []
     for s in _seed_states(state, seeds):
         tokens = None if frames is None else encode_frames(s.model, s.variables(), frames)
         out = []
         for lo in range(0, len(all_idx), WINDOW_CHUNK):
             sel = np.arange(lo, lo + WINDOW_CHUNK).clip(max=len(all_idx) - 1)
+            part = None if motion is None else {k: v[sel] for k, v in motion.items()}
             out.append(np.asarray(predict_windows(s.model, s.variables(), tokens, index[sel],
-                                                  mask[sel], imu[sel])))
+                                                  mask[sel], imu[sel], part)))
         per_seed.append(np.concatenate(out)[:len(all_idx)])
     per_seed_arr = np.stack(per_seed).astype(np.float64)
     per_window = per_seed_arr.mean(axis=0)
@@ -141,7 +149,8 @@ def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
 
 
 def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = "best",
-                        run: CalibRunConfig | None = None, inject_offset=None
+                        run: CalibRunConfig | None = None, inject_offset=None,
+                        rotation_source: Callable[[Path], Any] | None = None
                         ) -> tuple[dict, SequencePrediction]:
     """``(info, prediction)`` of the run folder's ``kind`` checkpoint on ``sequence``, cut into
     the run's windows (black frames masked, as in training). Reads nothing of the recording
@@ -152,6 +161,9 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     restored model allows, :data:`~uavcal_jax.calib.loop.INFERENCE_KEYS`, e.g.
     ``model.frame_encoder_dtype``: the frame encoder's operand type, same parameters).
     ``inject_offset``: ``(6,)`` added to the IMU first (only the model's channels are used).
+    ``rotation_source``: for a run with ``window.rotations=visual``, the camera's relative
+    rotations of the recording's folder (as :func:`uavcal_jax.calib.data.load_windows`
+    takes it); ``window.rotations=oracle`` reads the sequence's ground truth.
     ``info`` (JSON-ready): ``run``, ``kind``, ``seeds``, ``sensor``, ``channels``,
     ``frame_encoder_dtype``, ``window_s``, ``stride_s``, ``windows``.
 
@@ -163,7 +175,14 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     window = run.window
     sensor = run.injection.single_sensor
     where = sequence.root if sequence.root is not None else sequence.name
-    ws = mask_black_frames(make_windows(sequence, window), where)
+    visual = None
+    if window.rotations == "visual":
+        if rotation_source is None or sequence.root is None:
+            raise DataError("window.rotations=visual needs the recording's visual rotations "
+                            "(predict_on_sequence's rotation_source and a recording folder)",
+                            where)
+        visual = rotation_source(Path(sequence.root))
+    ws = mask_black_frames(make_windows(sequence, window, visual_rotations=visual), where)
     part = Windows(ws, np.arange(len(ws)), str(where))
     state, seeds = restore_run(run_dir, [part], kind=kind, run=run)
     pick = model_channels(run.model.imu_channels, sensor)

@@ -23,6 +23,7 @@ from uavcal_jax.calib.pretrained import default_weights
 from uavcal_jax.calib.trials import TRIAL_FORMAT, trial_folders
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.errors import DataError
+from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
 from uavcal_jax.pipeline.offset_estimate import OffsetEstimate, OffsetMethod, check_sequence
 
 __all__ = ["METHOD", "TransformerOptions", "configure", "estimate", "run_folder"]
@@ -89,8 +90,12 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
     """
     check_sequence(sequence)
     run = options.run
+    if run.window.rotations == "oracle":
+        raise DataError("this run reads ground-truth rotations (window.rotations=oracle): a "
+                        "bound for tables, not an estimate without ground truth",
+                        options.run_dir)
     info, prediction = predict_on_sequence(options.run_dir, sequence, kind=options.kind,
-                                           run=run)
+                                           run=run, rotation_source=visual_rotation_source)
     duration_ns = int(round(run.window.duration * 1e9))
     start_ns = prediction.start_ns
     return OffsetEstimate(
