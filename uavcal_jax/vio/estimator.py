@@ -4,9 +4,14 @@ machine over two phases.
 * Front end (:meth:`StereoVio.track`): corners tracked by the optical flow, seeded by the gyro
   rotation since the previous frame (:mod:`uavcal_jax.vio.imu_slice`).
 * **No window** (``waiting`` before the first pose, ``coasting`` on the IMU after a reset): a
-  frame with ``min_init_landmarks`` usable stereo matches opens a window (``initialized``) at
-  the propagated state, or first levelled by the accelerometer
-  (:mod:`uavcal_jax.vio.initialize`), under a gauge prior.
+  frame with ``min_init_landmarks`` usable stereo matches opens a window (``initialized``)
+  under a gauge prior. The first start is levelled by the accelerometer and at rest
+  (:mod:`uavcal_jax.vio.initialize`), so the first frame has a pose; ``init_frames`` frames
+  later the start is checked against gravity and velocity aligned from those frames' stereo
+  odometry and IMU (:mod:`uavcal_jax.vio.motion_init`) and the window re-opened there
+  (reason ``moving``) when it was off (a body accelerating at the start). After a reset the
+  estimator coasts on the IMU (reason ``reinit``) until the frames since align, and opens
+  there: a re-initialisation while moving, no hover needed.
 * **Window** (``tracking``, or ``coasting`` without landmarks): the frame is predicted by its
   IMU interval, tested for a keyframe (:mod:`uavcal_jax.vio.keyframes`, or the last keyframe
   older than ``max_keyframe_interval_s``), inserted, solved and pruned
@@ -33,11 +38,12 @@ from uavcal_jax.data.sequence import CameraCalibration, ImuCalibration, ImuData
 from uavcal_jax.errors import DataError
 from uavcal_jax.vio.body_state import BodyState
 from uavcal_jax.vio.config import VioConfig, resolve_camera
-from uavcal_jax.vio.failure import Failure, blind_frames, check_failure
+from uavcal_jax.vio.failure import Failure, blind_frames, check_failure, cost_excess_frames
 from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures
-from uavcal_jax.vio.imu_slice import ImuGap, ImuStream
-from uavcal_jax.vio.initialize import gravity_aligned_rotation
+from uavcal_jax.vio.imu_slice import IMU_GAP_PERIODS, ImuGap, ImuStream
+from uavcal_jax.vio.initialize import gravity_aligned_rotation, yaw_of
 from uavcal_jax.vio.keyframes import body_to_camera_rotation, keyframe_decision
+from uavcal_jax.vio.motion_init import initialize_moving
 from uavcal_jax.vio.sliding_window import SlidingWindow
 from uavcal_jax.vio.slots import stereo_depths
 from uavcal_jax.vio.stage_timer import StageTimer
@@ -75,6 +81,7 @@ class FrameEstimate:
         tracked, stereo: the front end's corners and stereo matches.
         landmarks: landmarks observed in the window after the solve.
         iterations: solver iterations.  cost: the solved window cost.
+        rows: residual rows in use in the window (``cost / rows`` near 0.5 when consistent).
         timings: milliseconds (:class:`~uavcal_jax.vio.stage_timer.StageTimer`): ``frontend``,
             ``solve`` (insert, solve, prune), ``marginalize`` (the slide), ``total``.
     """
@@ -89,6 +96,7 @@ class FrameEstimate:
     landmarks: int = 0
     iterations: int = 0
     cost: float = float("nan")
+    rows: int = 0
     timings: dict = dataclasses.field(default_factory=dict)
 
     @property
@@ -144,6 +152,12 @@ class StereoVio:
         T = np.stack([np.asarray(left.T_BS, np.float64), np.asarray(right.T_BS, np.float64)])
         self.T_C0C1 = np.linalg.inv(T[0]) @ T[1]
         self.R_BC0 = T[0, :3, :3]
+        self.T_BC0 = T[0]
+        # the no-window phase's last frames: (t_ns, features, stereo depths, IMU interval
+        # from the frame before) for the initialisation while moving
+        self._init_frames: list[tuple] | None = None
+        self._init_tries = 0
+        self._cost_excess = 0  # consecutive frames failing the window's chi-square test
         with jax.enable_x64(True):
             self.params = CalibParams(jnp.zeros(6), jnp.asarray(T[:, :3, :3]),
                                       jnp.asarray(T[:, :3, 3]))
@@ -221,13 +235,18 @@ class StereoVio:
         if not is_kf and (t_ns - slots.last_keyframe_time()) * 1e-9 > cfg.max_keyframe_interval_s:
             is_kf, reason = True, "interval"
 
+        depths = stereo_depths(feats, self.T_C0C1, cfg.min_stereo_depth, cfg.max_stereo_depth)
         info, active, est = window.insert_solve(
-            pred, pim, self.imu.full_row(iv.samples), self._measurements(feats), is_kf,
+            pred, pim, self.imu.full_row(iv.samples), self._measurements(feats, depths), is_kf,
             cfg.min_stereo_depth * PRUNE_DEPTH_FRACTION)
         timer.lap("solve")
         slots.blind = blind_frames(slots.blind, active, cfg.limits)
         cost = float(info.cost_final)
-        failure = check_failure(est, pred, cost, slots.rows, slots.blind, cfg.limits)
+        self._cost_excess = cost_excess_frames(self._cost_excess, cost, slots.rows, cfg.limits)
+        # the velocity test waits for the start check: an at-rest start on a body in flight
+        # is corrected by its first solves, which is no failure
+        failure = check_failure(est, pred, cost, slots.rows, slots.blind, cfg.limits,
+                                self._cost_excess, velocity_check=self._init_frames is None)
         if failure is not None:
             return self._reset(failure, t_ns, pred, timer, feats)
 
@@ -238,10 +257,15 @@ class StereoVio:
             window.refine_gyro_bias()
         timer.lap("marginalize")
         self._last_good = est
+        if self._init_frames is not None and cfg.init_frames >= 3:
+            self._buffer_init(t_ns, feats, depths)
+            start = self._check_start(est)
+            if start is not None:
+                return self._reopen(start, feats, depths, timer)
         status = "tracking" if active >= cfg.limits.min_landmarks else "coasting"
         return FrameEstimate(t_ns, est, status, reason, keyframe=is_kf, tracked=feats.n_tracked,
                              stereo=feats.n_stereo, landmarks=active,
-                             iterations=int(info.iterations), cost=cost,
+                             iterations=int(info.iterations), cost=cost, rows=slots.rows,
                              timings=timer.timings())
 
     def _reset(self, reason: Failure | ImuGap, t_ns: int, pred: BodyState | None,
@@ -255,9 +279,78 @@ class StereoVio:
             state = self._last_good.hold(t_ns)
         self.resets += 1
         self._last_good = state
+        # re-initialise from the next frames' alignment (not at the propagated state)
+        self._init_frames, self._init_tries = [], 0
+        self._cost_excess = 0
         self.window = SlidingWindow(self.config, self.noise, self.params)
         return FrameEstimate(t_ns, state, "reset", reason.value, tracked=feats.n_tracked,
                              stereo=feats.n_stereo, timings=timer.timings())
+
+    def _buffer_init(self, t_ns: int, feats: FrameFeatures, depths: tuple) -> None:
+        """Keep the frame for the check of the start while moving (the last ``init_frames``
+        consecutive frames with their stereo depths and the IMU interval before each)."""
+        buf = self._init_frames
+        iv = None
+        if buf:
+            iv = self.imu.raw(buf[-1][0], t_ns)
+            if iv is None or iv.dt.max() > IMU_GAP_PERIODS * self.imu.period:
+                buf.clear()
+        if int(np.sum(depths[1])) < self.config.min_init_landmarks:
+            buf.clear()  # the odometry needs every frame of the stretch
+            return
+        buf.append((t_ns, feats, depths, iv if buf else None))
+        del buf[:-self.config.init_frames]
+
+    def _align(self, ref: BodyState) -> BodyState | None:
+        """The state at the newest buffered frame from the last ``init_frames`` frames' stereo
+        odometry and IMU (:func:`~uavcal_jax.vio.motion_init.initialize_moving`): aligned
+        gravity and velocity, ``ref``'s position and yaw, zero biases (the window estimates
+        them; after a failure the old ones are suspect). ``None`` while the frames are too
+        few or do not align (the oldest is then dropped). Counts the try."""
+        cfg = self.config
+        buf = self._init_frames
+        self._init_tries += 1
+        if len(buf) < cfg.init_frames:
+            return None
+        rows = [(b[3].dt, b[3].gyro, b[3].accel) for b in buf[1:]]
+        init = initialize_moving([b[1] for b in buf], [b[2] for b in buf], rows, self.T_BC0,
+                                 yaw_of(ref.rotation))
+        if init is None:
+            del buf[0]
+            return None
+        return BodyState(ref.t_ns, init.rotation, ref.position.copy(), init.velocity,
+                         np.zeros(3), np.zeros(3))
+
+    def _check_start(self, est: BodyState) -> BodyState | None:
+        """In the window's first frames: the window opened on an assumption (levelled by the
+        accelerometer mean and at rest at the first start) that is wrong while the body
+        accelerates. Once ``init_frames`` frames align (:meth:`_align`), the aligned state
+        when it disagrees with the solved ``est`` by more than ``init_tilt_deg`` or
+        ``init_velocity`` (the window is then re-opened there), else ``None``. The check
+        ends once it ran, or after ``3 * init_frames`` frames without an alignment."""
+        cfg = self.config
+        start = self._align(est)
+        if start is not None or self._init_tries > 3 * cfg.init_frames:
+            self._init_frames = None
+        if start is None:
+            return None
+        tilt = np.degrees(np.arccos(np.clip(start.rotation[2] @ est.rotation[2], -1.0, 1.0)))
+        dv = float(np.linalg.norm(start.velocity - est.velocity))
+        return start if tilt > cfg.init_tilt_deg or dv > cfg.init_velocity else None
+
+    def _reopen(self, state: BodyState, feats: FrameFeatures, depths: tuple,
+                timer: StageTimer) -> FrameEstimate:
+        """A new window at ``state`` (the start while moving), this frame its first keyframe."""
+        self.window = SlidingWindow(self.config, self.noise, self.params)
+        self._cost_excess = 0
+        self.window.open(state, self._measurements(feats, depths))
+        self.window.slots.kf_features, self.window.slots.kf_rotation = feats, state.rotation
+        self._last_good = state
+        timer.lap("solve")
+        return FrameEstimate(state.t_ns, state, "initialized", "moving", keyframe=True,
+                             tracked=feats.n_tracked, stereo=feats.n_stereo,
+                             landmarks=int(np.sum(self.window.slots.landmark_used)),
+                             timings=timer.timings())
 
     def _open_window(self, t_ns: int, feats: FrameFeatures, timer: StageTimer
                      ) -> FrameEstimate:
@@ -276,17 +369,33 @@ class StereoVio:
             return FrameEstimate(t_ns, state, "waiting" if state is None else "coasting",
                                  tracked=feats.n_tracked, stereo=feats.n_stereo,
                                  timings=timer.timings())
-        if state is None:
+        reason = "first"
+        if state is not None and self._init_frames is not None and cfg.init_frames >= 3:
+            # after a reset: coast until the last frames align (a start while moving),
+            # at most 3 * init_frames frames, then open at the IMU-propagated state
+            self._buffer_init(t_ns, feats, depths)
+            start = self._align(state)
+            if start is None and self._init_tries <= 3 * cfg.init_frames:
+                self._last_good = state
+                return FrameEstimate(t_ns, state, "coasting", "reinit",
+                                     tracked=feats.n_tracked, stereo=feats.n_stereo,
+                                     timings=timer.timings())
+            state, reason = (start, "moving") if start is not None else (state, "propagated")
+            self._init_frames = None
+        elif state is None:
             try:
                 R0 = gravity_aligned_rotation(self.imu.accel_mean(t_ns, cfg.accel_init_s))
             except ValueError:
                 return FrameEstimate(t_ns, None, "waiting", tracked=feats.n_tracked)
             state = BodyState.at_rest(t_ns, R0)
+            if cfg.init_frames >= 3:  # check the levelled, at-rest start once frames align
+                self._init_frames, self._init_tries = [], 0
+                self._buffer_init(t_ns, feats, depths)
         self.window.open(state, self._measurements(feats, depths))
         self.window.slots.kf_features, self.window.slots.kf_rotation = feats, state.rotation
         self._last_good = state
         timer.lap("solve")
-        return FrameEstimate(t_ns, state, "initialized", "first", keyframe=True,
+        return FrameEstimate(t_ns, state, "initialized", reason, keyframe=True,
                              tracked=feats.n_tracked, stereo=feats.n_stereo,
                              landmarks=int(np.sum(self.window.slots.landmark_used)),
                              timings=timer.timings())
