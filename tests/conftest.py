@@ -78,17 +78,19 @@ def xla_cache(tmp_path_factory):
     cc.reset_cache()
 
 
-#: Seconds the heaviest modules take on CI (2 cores, two workers; measured with
-#: ``PYTEST_ADDOPTS=--junitxml=...``). :func:`pytest_collection_modifyitems` runs them first:
-#: with ``--dist loadfile --no-loadscope-reorder`` the workers take whole modules in this
-#: order, longest first, so the two finish together instead of one waiting on a long module
-#: that came last (xdist's default order is by test count, which puts these last).
+#: Seconds the heaviest modules take on CI (2 cores, two workers, ``heavy`` tests left out;
+#: measured with ``PYTEST_ADDOPTS=--junitxml=...``). :func:`pytest_collection_modifyitems`
+#: runs them first: with ``--dist loadfile --no-loadscope-reorder`` the workers take whole
+#: modules in this order, longest first, so the two finish together instead of one waiting on
+#: a long module that came last (xdist's default order is by test count, which puts these
+#: last).
 MODULE_SECONDS = {
-    "test_cli_calib.py": 300, "test_cli_detect.py": 250, "test_detect_train.py": 200,
-    "test_vio_flight.py": 160, "test_cli_simulate.py": 150, "test_vio_estimator.py": 120,
-    "test_pipeline_offsets.py": 150, "test_vio_implicit.py": 80, "test_calib_train.py": 60,
-    "test_visual_rotation.py": 60, "test_calib_loop.py": 60, "test_calib_motion.py": 40,
-    "test_sim_hybrid.py": 30,
+    "test_detect_train.py": 390, "test_preintegration.py": 255, "test_cli_calib.py": 170,
+    "test_vio_estimator.py": 135, "test_detect_model.py": 135, "test_cli_simulate.py": 125,
+    "test_pipeline_offsets.py": 125, "test_vio_marginalize.py": 110,
+    "test_preintegration_gtsam.py": 100, "test_calib_train.py": 90, "test_calib_model.py": 90,
+    "test_vio_flight.py": 80, "test_calib_loop.py": 75, "test_vio_solver.py": 70,
+    "test_sim_camera.py": 65, "test_cli_vio.py": 65,
 }
 
 

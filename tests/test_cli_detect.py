@@ -139,6 +139,7 @@ def test_errors_are_one_line_exit_2(tmp_path, capsys):
     assert "empty" in capsys.readouterr().err
 
 
+@pytest.mark.heavy
 def test_train_eval_predict_on_unseen_voc(tmp_path, capsys):
     data = make_voc(tmp_path / "voc")
     run = tmp_path / "run"

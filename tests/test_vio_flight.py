@@ -38,6 +38,7 @@ def _speed_at(seq, t_rel_s: float) -> float:
     return float(np.linalg.norm(gt.velocity[i]))
 
 
+@pytest.mark.heavy
 def test_hover_then_fly_runs_to_the_end_within_bounded_error(flight):
     # the flight is what the test says it is: still first, then fast
     assert _speed_at(flight, 2.0) < 0.05 and _speed_at(flight, 9.0) > 1.2

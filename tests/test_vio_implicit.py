@@ -34,6 +34,7 @@ def window():
         yield w, x
 
 
+@pytest.mark.heavy
 def test_implicit_gradient_matches_finite_differences(window, x64):
     w, x = window
 

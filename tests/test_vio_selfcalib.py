@@ -15,6 +15,7 @@ from uavcal_jax.vio.selfcalib import (
 )
 
 
+@pytest.mark.heavy
 def test_recover_offset_removes_most_of_the_error():
     offset = np.array(DEFAULT_GYRO + DEFAULT_ACCEL)
     cfg = SelfCalibConfig(windows=2, n_frames=8, n_landmarks=50, keyframe_dt=0.2, steps=4)
