@@ -30,6 +30,16 @@ Usage::
     python experiments/vio_euroc.py --sequences V1_01_easy MH_01_easy --duration 20
     python experiments/vio_euroc.py --trajectories ../shared/data/trajectories/uzh_fpv \
         --duration full --no-micro --out experiments/out/vio_uzh_fpv
+    python experiments/vio_euroc.py --trajectories ../shared/data/trajectories/uzh_fpv_outdoor \
+        --duration full --no-micro --mount euroc flu:auto --out experiments/out/vio_outdoor
+
+``--mount`` says how the stereo rig sits on each trajectory's body (``uavcal simulate
+--body-frame/--camera-pitch``): ``euroc`` attaches EuRoC's rig to the file's body frame as it
+is (on a z-up file the camera looks up, at the ceiling); ``flu:DEG`` reads the file as x
+forward, y left, z up and pitches the rig DEG below the forward axis, as a drone carries it;
+``flu:auto`` takes 45 for a flight named ``*45*`` and 0 otherwise (UZH-FPV's two camera
+set-ups). Each mounting is a row of its own. Every table gives the path flown and ATE as a
+percentage of it beside the ATE in metres.
 """
 
 from __future__ import annotations
@@ -66,14 +76,49 @@ def _duration(text: str) -> float | None:
     return None if text == "full" else float(text)
 
 
+def _mount(text: str) -> tuple[str, str | None]:
+    """``euroc`` | ``flu:DEG`` | ``flu:auto`` -> (body frame, pitch text or None)."""
+    if text == "euroc":
+        return "euroc", None
+    frame, _, pitch = text.partition(":")
+    if frame != "flu" or not pitch or (pitch != "auto" and not _is_number(pitch)):
+        raise argparse.ArgumentTypeError(f"--mount: expected euroc, flu:DEG or flu:auto, "
+                                         f"got {text!r}")
+    return "flu", pitch
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _mount_fields(mount: tuple[str, str | None], name: str) -> dict:
+    """SimConfig fields of a mounting for trajectory ``name``, and its label suffix."""
+    frame, pitch = mount
+    if frame == "euroc":
+        return {}
+    deg = (45.0 if "45" in name else 0.0) if pitch == "auto" else float(pitch)
+    return {"body_frame": "flu", "camera_pitch_deg": deg}
+
+
+def _mount_label(fields: dict) -> str:
+    return "" if not fields else f"_flu{fields['camera_pitch_deg']:g}"
+
+
 def _simulated(trajectories: Path, name: str, start: float, duration: float | None,
-               ideal: bool, cache: Path, seed: int, progress: bool) -> Path:
+               ideal: bool, cache: Path, seed: int, progress: bool,
+               mount_fields: dict | None = None) -> Path:
     traj = trajectories / f"{name}.txt"
     if duration is None:
         duration = trajectory_span(traj) - start - 0.1
+    fields = mount_fields or {}
     cfg = SimConfig(trajectory=str(traj), start=start, duration=round(duration, 1), seed=seed,
-                    depth=False, targets=False, ideal_camera=ideal)
-    return cached_simulation(cfg, cache, name + ("_ideal" if ideal else ""), progress=progress)
+                    depth=False, targets=False, ideal_camera=ideal, **fields)
+    tag = name + _mount_label(fields) + ("_ideal" if ideal else "")
+    return cached_simulation(cfg, cache, tag, progress=progress)
 
 
 def _read(root: Path):
@@ -93,8 +138,10 @@ def _evaluate(root: Path, label: str, out_dir: Path, progress: bool) -> dict:
     png = plot_trajectories(traj, seq.ground_truth, out_dir / f"{label}.png",
                             alignment=err["ate_m"]["alignment"], title=f"VIO on {label}")
     flags = result.flags()
+    path_m = float(np.linalg.norm(np.diff(seq.ground_truth.position, axis=0), axis=1).sum())
     return {
         "sequence": label, "frames": len(result.frames), "poses": len(traj),
+        "path_m": path_m, "ate_percent_of_path": 100.0 * err["ate_m"]["rmse"] / path_m,
         "ate_rmse_m": err["ate_m"]["rmse"], "ate_max_m": err["ate_m"]["max"],
         "alignment": err["ate_m"]["alignment"],
         "rpe_1m_m": None if err["rpe_1m"] is None else err["rpe_1m"]["translation_rmse_m"],
@@ -107,7 +154,7 @@ def _evaluate(root: Path, label: str, out_dir: Path, progress: bool) -> dict:
 
 
 def _table(rows: list[dict], published: dict, ideal: dict) -> str:
-    head = ["Sequence", *PUBLISHED_METHODS, "ours ATE (m)"]
+    head = ["Sequence", *PUBLISHED_METHODS, "path (m)", "ours ATE (m)", "ATE % of path"]
     if ideal:
         head.append("ours noise-free (m)")
     head += ["ours ms/frame (wall)", "keyframes", "resets"]
@@ -116,7 +163,8 @@ def _table(rows: list[dict], published: dict, ideal: dict) -> str:
         seq = row["sequence"]
         base = seq.split("_s")[0]
         cells = [seq] + [str(published.get(m, {}).get(base, "—")) for m in PUBLISHED_METHODS]
-        cells.append(f"{row['ate_rmse_m']:.3f}")
+        cells += [f"{row['path_m']:.1f}", f"{row['ate_rmse_m']:.3f}",
+                  f"{row['ate_percent_of_path']:.2f}"]
         if ideal:
             cells.append(f"{ideal[seq]['ate_rmse_m']:.3f}" if seq in ideal else "—")
         ms = row["mean_ms_per_frame"]
@@ -125,7 +173,9 @@ def _table(rows: list[dict], published: dict, ideal: dict) -> str:
     sim = [r for r in rows if r["sequence"] != "V1_01_micro (real)"]
     if sim:
         lines.append(f"| **mean (simulated)** | {' | '.join('—' for _ in PUBLISHED_METHODS)} | "
-                     f"**{np.mean([r['ate_rmse_m'] for r in sim]):.3f}** |"
+                     f"{np.mean([r['path_m'] for r in sim]):.1f} | "
+                     f"**{np.mean([r['ate_rmse_m'] for r in sim]):.3f}** | "
+                     f"{np.mean([r['ate_percent_of_path'] for r in sim]):.2f} |"
                      + (" |" if ideal else "") + " | | |")
     lines.append("")
     lines.append("Published columns are real-EuRoC figures (RPEOD Table 2); per-sequence values "
@@ -152,6 +202,10 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "out" / "vio_euroc")
     ap.add_argument("--published", type=Path, default=None,
                     help="JSON of published per-sequence ATE: {method: {sequence: m}}")
+    ap.add_argument("--mount", type=_mount, nargs="+", default=[("euroc", None)],
+                    metavar="{euroc,flu:DEG,flu:auto}",
+                    help="how the stereo rig sits on each trajectory's body; each mounting "
+                         "is a row of its own [default: euroc]")
     ap.add_argument("--no-micro", action="store_true", help="skip the real micro slice")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args()
@@ -162,27 +216,30 @@ def main() -> None:
         ap.error(f"no trajectories (*.txt) in {args.trajectories}")
     t0 = time.perf_counter()
     rows, ideal = [], {}
-    roots = {name: _simulated(args.trajectories, name, args.start, args.duration, False,
-                              args.cache, args.seed, not args.quiet) for name in names}
+    flights = [(name, _mount_fields(mount, name)) for name in names for mount in args.mount]
+    roots = {(name, _mount_label(fields)): _simulated(
+        args.trajectories, name, args.start, args.duration, False, args.cache, args.seed,
+        not args.quiet, fields) for name, fields in flights}
     # compile every jitted function (the marginalisation only once the window is full) before
     # any sequence is timed: all runs share one configuration, so one warm-up serves them all
-    run_vio(_read(roots[names[0]]), max_frames=WARM_UP_FRAMES)
+    run_vio(_read(next(iter(roots.values()))), max_frames=WARM_UP_FRAMES)
     if not args.no_micro and MICRO.is_dir():
         rows.append(_evaluate(MICRO, "V1_01_micro (real)", args.out, not args.quiet))
-    for name in names:
-        root = roots[name]
-        label = f"{name}_s{args.start:g}"
+    for name, fields in flights:
+        root = roots[(name, _mount_label(fields))]
+        label = f"{name}{_mount_label(fields)}_s{args.start:g}"
         rows.append(_evaluate(root, label, args.out, not args.quiet))
         print(f"{label}: ATE {rows[-1]['ate_rmse_m']:.3f} m", flush=True)
         if args.ideal:
             root_i = _simulated(args.trajectories, name, args.start, args.duration, True,
-                                args.cache, args.seed, not args.quiet)
+                                args.cache, args.seed, not args.quiet, fields)
             ideal[label] = _evaluate(root_i, label + "_ideal", args.out, not args.quiet)
     table = _table(rows, published, ideal)
     (args.out / "vio_euroc.md").write_text(table + "\n")
     sim = [r for r in rows if "(real)" not in r["sequence"]]
     summary = {
         "rows": rows, "ideal": ideal, "duration_s": args.duration, "start_s": args.start,
+        "mounts": [m[0] if m[1] is None else f"{m[0]}:{m[1]}" for m in args.mount],
         "mean_ate_simulated_m": float(np.mean([r["ate_rmse_m"] for r in sim])) if sim else None,
         "diverged": [r["sequence"] for r in rows if r["diverged"]],
         "wall_s": time.perf_counter() - t0,

@@ -16,7 +16,7 @@ from uavcal_jax.allocator import keep_freed_memory
 from uavcal_jax.errors import DataError
 
 #: Sub-command modules under ``uavcal_jax.commands``, in ``--help`` order.
-COMMANDS = ("simulate", "info", "calib", "vio", "detect", "demo")
+COMMANDS = ("simulate", "info", "calib", "vio", "detect", "run", "demo")
 
 
 def build_parser() -> argparse.ArgumentParser:

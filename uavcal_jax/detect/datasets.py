@@ -5,7 +5,8 @@ fixed train/validation split.
 output folder (:mod:`uavcal_jax.data.detection_labels`, whose docstring gives the bad-input
 policy and coordinate conventions) into a
 :class:`~uavcal_jax.data.detection_records.DetectionDataset`, expressed in a given class list
-(:func:`remap_classes`). :func:`split_ids` is the fixed split by image.
+(:func:`remap_classes`); :func:`concat_datasets` joins several (e.g. simulated flights) into
+one. :func:`split_ids` is the fixed split by image.
 
 Missing folders, folders without images and unknown formats raise
 :class:`~uavcal_jax.errors.DataError` naming the path.
@@ -15,6 +16,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +69,32 @@ def load_dataset(path: str | Path, format: str | None = None, class_names=None, 
     if class_names is not None and tuple(class_names) != ds.class_names:
         ds = remap_classes(ds, class_names)
     return ds
+
+
+def concat_datasets(parts: Sequence[tuple[str, DetectionDataset]]) -> DetectionDataset:
+    """One data set of several ``(name, dataset)`` parts, e.g. simulated flights.
+
+    Image ids become ``"<name>/<image_id>"`` (each flight's ``cam0/<t>.png`` would collide
+    otherwise), so names must be unique. Every part is expressed in the first part's class
+    list (:func:`remap_classes`); the root is the parts' common folder and the format is
+    theirs when they share one, else ``"mixed"``.
+    """
+    if not parts:
+        raise ValueError("concat_datasets needs at least one data set")
+    names = [n for n, _ in parts]
+    if len(set(names)) != len(names):
+        raise ValueError(f"data set names must be unique, got {names}")
+    class_names = parts[0][1].class_names
+    records = []
+    for name, ds in parts:
+        if ds.class_names != class_names:
+            ds = remap_classes(ds, class_names)
+        records += [replace(r, image_id=f"{name}/{r.image_id}") for r in ds.records]
+    roots = [str(Path(ds.root).absolute()) for _, ds in parts]
+    formats = {ds.format for _, ds in parts}
+    return DetectionDataset(tuple(records), class_names, Path(os.path.commonpath(roots)),
+                            formats.pop() if len(formats) == 1 else "mixed",
+                            parts[0][1].category_ids)
 
 
 # ------------------------------------------------------------------------------ splitting

@@ -12,7 +12,9 @@ Run folder::
     checkpoints/best/<epoch>/  EMA variables of the best epoch + meta
     export/detector.jax        the exported predict function (written by ``uavcal detect``)
 
-Only :func:`load_run` needs the model and orbax; they are imported when it is called, so the
+:func:`export_run` cuts a run down to what predicting needs (``config.json``, ``metrics.json``
+and the best checkpoint), as the shipped weights are. Only :func:`load_run` needs the model
+and orbax; they are imported when it is called, so the
 paths and constants here are cheap to import (the CLI builds its parser from them).
 """
 
@@ -21,6 +23,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,6 +116,52 @@ def write_metrics(paths: RunPaths, history: list[dict], best_epoch: int | None,
         "history": history, "best_epoch": best_epoch,
         "best_score": None if best_score is None or best_score == -math.inf else best_score,
         "select_metric": select_metric}, indent=1))
+
+
+def export_run(run: str | Path, target: str | Path, which: str = "best", *,
+               params_dtype: str | None = None, extra: dict[str, dict] | None = None) -> Path:
+    """Write ``target``: ``run``'s ``config.json``, ``metrics.json`` and its ``which``
+    checkpoint only (no optimiser state, split or export), plus ``extra`` JSON files
+    (``{"eval.json": {...}}``). It restores like the run (:func:`load_run` with ``which``)
+    but does not resume training.
+
+    ``params_dtype`` (``"float16"``; ``which="best"`` only) stores the parameters in that
+    type, halving the folder; the batch statistics stay float32 and :func:`load_run` casts
+    back to the model's float32 (weights rounded to 11 significant bits, about 3 decimal
+    digits). Written into a temporary sibling and renamed, so ``target`` is whole or absent.
+    """
+    src, target = RunPaths(Path(run)), Path(target)
+    if not src.config.is_file() or not src.checkpoints(which).is_dir():
+        raise DataError(f"not a training run with a {which} checkpoint", src.root)
+    if params_dtype is not None and which != "best":
+        raise ValueError("params_dtype applies to the best checkpoint (variables) only")
+    tmp = target.with_name(f".{target.name}.partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    out = RunPaths(tmp)
+    out.checkpoints(which).parent.mkdir(parents=True)
+    shutil.copy2(src.config, out.config)
+    if src.json.is_file():
+        shutil.copy2(src.json, out.json)
+    if params_dtype is None:
+        shutil.copytree(src.checkpoints(which), out.checkpoints(which))
+    else:
+        import jax
+        import numpy as np
+
+        from uavcal_jax.detect.checkpoint import Checkpoints
+
+        loaded = load_run(src.root, which)
+        params = jax.tree.map(lambda x: np.asarray(x).astype(params_dtype),
+                              loaded.variables["params"])
+        with Checkpoints(out.checkpoints(which), max_to_keep=1) as ck:
+            ck.save(int(loaded.meta.get("epoch", 0)) + 1,
+                    {"params": params, "batch_stats": loaded.variables["batch_stats"]},
+                    {**loaded.meta, "params_dtype": params_dtype})
+    for name, obj in (extra or {}).items():
+        (tmp / name).write_text(json.dumps(obj, indent=1))
+    shutil.rmtree(target, ignore_errors=True)
+    tmp.rename(target)
+    return target
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,12 @@ Modules, one job each:
   Avola et al. (``uavcal_jax.calib``).
 * :mod:`~uavcal_jax.pipeline.predict_offset`: a recording's offset by any method, scored
   against the truth afterwards (``uavcal calib predict``).
+* :mod:`~uavcal_jax.pipeline.run`: ``uavcal run``: offset, VIO + detector, target, set-points.
+* :mod:`~uavcal_jax.pipeline.run_config`: ``RunConfig``, the run's settings (``--set``).
+* :mod:`~uavcal_jax.pipeline.detectors`: ``Detector``; the trained and the label-box ones.
+* :mod:`~uavcal_jax.pipeline.targets`: detections -> the followed track, located, filtered.
+* :mod:`~uavcal_jax.pipeline.run_metrics`: the run against the truth, follow figures, timings.
+* :mod:`~uavcal_jax.pipeline.run_outputs`: the output folder's files and ``metrics.json``.
 
 No estimator sees the ground truth: :func:`~uavcal_jax.pipeline.predict_offset.predict_offset`
 hands it the recording without one, and scores the estimate only once it is made.

@@ -38,7 +38,14 @@ from uavcal_jax.data.sequence import CameraCalibration, ImuCalibration, ImuData
 from uavcal_jax.errors import DataError
 from uavcal_jax.vio.body_state import BodyState
 from uavcal_jax.vio.config import VioConfig, resolve_camera
-from uavcal_jax.vio.failure import Failure, blind_frames, check_failure, cost_excess_frames
+from uavcal_jax.vio.failure import (
+    Failure,
+    blind_frames,
+    check_failure,
+    cost_excess_frames,
+    outlier_frames,
+    rejected_observations,
+)
 from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures
 from uavcal_jax.vio.imu_slice import IMU_GAP_PERIODS, ImuGap, ImuStream
 from uavcal_jax.vio.initialize import gravity_aligned_rotation, yaw_of
@@ -158,6 +165,7 @@ class StereoVio:
         self._init_frames: list[tuple] | None = None
         self._init_tries = 0
         self._cost_excess = 0  # consecutive frames failing the window's chi-square test
+        self._outliers = 0  # consecutive frames whose tracked observations were mostly rejected
         with jax.enable_x64(True):
             self.params = CalibParams(jnp.zeros(6), jnp.asarray(T[:, :3, :3]),
                                       jnp.asarray(T[:, :3, 3]))
@@ -236,17 +244,25 @@ class StereoVio:
             is_kf, reason = True, "interval"
 
         depths = stereo_depths(feats, self.T_C0C1, cfg.min_stereo_depth, cfg.max_stereo_depth)
+        updates = self._measurements(feats, depths)
         info, active, est = window.insert_solve(
-            pred, pim, self.imu.full_row(iv.samples), self._measurements(feats, depths), is_kf,
+            pred, pim, self.imu.full_row(iv.samples), updates, is_kf,
             cfg.min_stereo_depth * PRUNE_DEPTH_FRACTION)
         timer.lap("solve")
         slots.blind = blind_frames(slots.blind, active, cfg.limits)
         cost = float(info.cost_final)
         self._cost_excess = cost_excess_frames(self._cost_excess, cost, slots.rows, cfg.limits)
-        # the velocity test waits for the start check: an at-rest start on a body in flight
-        # is corrected by its first solves, which is no failure
+        # the velocity and outlier tests wait for the start check: an at-rest start on a body
+        # in flight is corrected by its first solves (or re-opened by the check), which is no
+        # failure, though until then most tracks look wrong against it (a simulated outdoor
+        # flight at 8 m/s: 55-98 % rejected in its first 9 frames)
+        if self._init_frames is None:
+            self._outliers = outlier_frames(
+                self._outliers, *rejected_observations(updates, slots.observation_used),
+                cfg.limits)
         failure = check_failure(est, pred, cost, slots.rows, slots.blind, cfg.limits,
-                                self._cost_excess, velocity_check=self._init_frames is None)
+                                self._cost_excess, velocity_check=self._init_frames is None,
+                                outliers=self._outliers)
         if failure is not None:
             return self._reset(failure, t_ns, pred, timer, feats)
 
@@ -281,7 +297,7 @@ class StereoVio:
         self._last_good = state
         # re-initialise from the next frames' alignment (not at the propagated state)
         self._init_frames, self._init_tries = [], 0
-        self._cost_excess = 0
+        self._cost_excess = self._outliers = 0
         self.window = SlidingWindow(self.config, self.noise, self.params)
         return FrameEstimate(t_ns, state, "reset", reason.value, tracked=feats.n_tracked,
                              stereo=feats.n_stereo, timings=timer.timings())
@@ -342,7 +358,7 @@ class StereoVio:
                 timer: StageTimer) -> FrameEstimate:
         """A new window at ``state`` (the start while moving), this frame its first keyframe."""
         self.window = SlidingWindow(self.config, self.noise, self.params)
-        self._cost_excess = 0
+        self._cost_excess = self._outliers = 0
         self.window.open(state, self._measurements(feats, depths))
         self.window.slots.kf_features, self.window.slots.kf_rotation = feats, state.rotation
         self._last_good = state

@@ -1,0 +1,219 @@
+"""Make the small detector weights shipped in the package (``uavcal run`` without
+``--detector``: :func:`uavcal_jax.detect.default_weights.default_detector_run`).
+
+Recipe: the simulator's targets (car, person) on cam0 frames rendered at EuRoC's 752x480
+with its camera model (exposure, noise, motion blur), ``--rate`` frames a second (spaced
+frames: consecutive 20 Hz frames are near copies), along
+
+* ``--procedural`` seeded procedural flights of ``--duration`` s (seeds from
+  :data:`FLIGHT_SEED`: the demo flies seed 0, training starts past it);
+* the EuRoC trajectories :data:`EUROC_TRAIN` and the UZH-FPV indoor ones :data:`UZH_TRAIN`
+  (``--body-frame flu``, the rig pitched :data:`UZH_PITCH_DEG` down), ``--duration`` s
+  from :data:`TRAJ_START_S` s in (past the take-off);
+
+each with :data:`FOLLOW_TARGETS` moving targets placed where the camera looks
+(``SimConfig.follow_targets``) besides the scene's own. The flights are rendered once into
+``--cache`` (:func:`uavcal_jax.sim.cache.cached_simulation`), joined into one set
+(:func:`uavcal_jax.detect.datasets.concat_datasets`) and trained on with the
+:data:`~uavcal_jax.detect.default_weights.SHIPPED` preset (YZNet-YOLO-tiny at 256x384, YOLOv5's
+SGD recipe; ``--epochs``, ``--set``) into ``--cache/run``, a tenth of the frames validating
+and choosing the best epoch. Training stops early when ``--budget`` minutes have gone (the
+epoch that would pass it is not started). The best checkpoint is then scored on a held-out
+flight, :data:`HELD_OUT` (a EuRoC trajectory no training flight uses, a seed none uses;
+EuRoC's MH_04_difficult and V2_03_difficult are never trained on), with pycocotools-checked
+COCO mAP (:func:`uavcal_jax.detect.evaluate.evaluate_run`) as it ships: the run cut down to its
+config, metrics and best checkpoint, parameters stored as float16 (:data:`PARAMS_DTYPE`;
+restored as float32), plus that evaluation (``eval.json``), is written atomically to ``--out``
+(:func:`uavcal_jax.detect.run.export_run`).
+
+Usage::
+
+    python experiments/detector_default_weights.py                 # about 25 min, 2 cores
+    python experiments/detector_default_weights.py --procedural 1 --euroc-flights 0 \
+        --uzh-flights 0 --duration 4 --epochs 1 --max-steps 2 --out /tmp/det_smoke  # smoke
+
+The last line printed is one JSON object: mAP@0.5 and mAP@0.5:0.95 on the held-out flight
+and on the validation frames, the weights' size, the set's flights and frames, the training
+and total seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+from uavcal_jax.argtypes import positive, positive_int, print_json
+from uavcal_jax.config import apply_overrides
+from uavcal_jax.detect.datasets import concat_datasets, load_dataset
+from uavcal_jax.detect.default_weights import DEFAULT_DETECTOR_RUN, SHIPPED
+from uavcal_jax.detect.evaluate import evaluate_run
+from uavcal_jax.detect.run import RunPaths, export_run
+from uavcal_jax.detect.train import train
+from uavcal_jax.plots import training_curves_writer
+from uavcal_jax.progress import progress as progress_bar
+from uavcal_jax.sim.cache import cached_simulation
+from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.training_sets import trajectory_dir
+from uavcal_jax.xla_cache import enable_compilation_cache
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA_ROOT = ROOT.parent / "shared" / "data"
+#: First seed of the procedural flights (the demo flies seed 0).
+FLIGHT_SEED = 2000
+#: EuRoC trajectories trained on (MH_04_difficult and V2_03_difficult stay held out).
+EUROC_TRAIN = ("MH_01_easy", "V1_02_medium", "MH_03_medium", "V2_01_easy", "V1_03_difficult",
+               "MH_05_difficult", "V2_02_medium", "MH_02_easy", "V1_01_easy")
+#: UZH-FPV indoor trajectories trained on, flown with ``body_frame="flu"``.
+UZH_TRAIN = ("indoor_forward_3", "indoor_45_2", "indoor_forward_9", "indoor_45_13")
+#: The UZH-FPV flights' rig pitch below forward, degrees (the 45-degree flights' camera is
+#: steeper; a forward racer's looks at the horizon and sees no floor target).
+UZH_PITCH_DEG = 30.0
+#: Seconds into a trajectory file where its flight starts (EuRoC's MAV is still on the
+#: ground before).
+TRAJ_START_S = 20.0
+#: Moving targets placed in view of every flight.
+FOLLOW_TARGETS = 2
+#: How the shipped parameters are stored (:func:`uavcal_jax.detect.run.export_run`).
+PARAMS_DTYPE = "float16"
+#: The held-out flight: (name, trajectory stem or None, seed).
+HELD_OUT = ("MH_04_difficult", "MH_04_difficult", 9000)
+
+
+class _BudgetSpent(Exception):
+    """Raised by the per-epoch callback when the next epoch would pass ``--budget``."""
+
+
+def _sim(rate: float, duration: float, seed: int, **kw) -> SimConfig:
+    return SimConfig(duration=duration, seed=seed, camera_rate_hz=rate, depth=False,
+                     follow_targets=FOLLOW_TARGETS, **kw)
+
+
+def flights(args) -> list[tuple[str, SimConfig]]:
+    """``(name, SimConfig)`` of the training flights."""
+    out = [(f"proc_{i:02d}", _sim(args.rate, args.duration, FLIGHT_SEED + i))
+           for i in range(args.procedural)]
+    for i, stem in enumerate(EUROC_TRAIN[:args.euroc_flights]):
+        out.append((stem, _sim(args.rate, args.duration, FLIGHT_SEED + 100 + i,
+                               trajectory=str(trajectory_dir(DATA_ROOT, "euroc") / f"{stem}.txt"),
+                               start=TRAJ_START_S)))
+    for i, stem in enumerate(UZH_TRAIN[:args.uzh_flights]):
+        out.append((stem, _sim(args.rate, args.duration, FLIGHT_SEED + 200 + i,
+                               trajectory=str(trajectory_dir(DATA_ROOT, "uzh_fpv") /
+                                              f"{stem}.txt"),
+                               start=TRAJ_START_S, body_frame="flu",
+                               camera_pitch_deg=UZH_PITCH_DEG)))
+    return out
+
+
+def held_out(args) -> tuple[str, SimConfig]:
+    name, stem, seed = HELD_OUT
+    traj = None if stem is None else str(trajectory_dir(DATA_ROOT, "euroc") / f"{stem}.txt")
+    return name, _sim(args.rate, args.duration, seed, trajectory=traj,
+                      start=TRAJ_START_S if traj else 0.0)
+
+
+def _size_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+def _budget_callback(budget_s: float, t_start: float, curves):
+    """``on_epoch``: draw the curves, then stop when another epoch like the last would end
+    past the budget."""
+
+    def on_epoch(history, det_cfg):
+        curves(history, det_cfg)
+        last = history[-1]
+        epoch_s = last.get("train_time_s", 0.0) + last.get("eval_time_s", 0.0)
+        if time.perf_counter() - t_start + epoch_s > budget_s:
+            raise _BudgetSpent
+
+    return on_epoch
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--procedural", type=int, default=4, help="procedural flights")
+    ap.add_argument("--euroc-flights", type=int, default=3,
+                    help=f"EuRoC trajectories, the first of {EUROC_TRAIN}")
+    ap.add_argument("--uzh-flights", type=int, default=1,
+                    help=f"UZH-FPV indoor trajectories, the first of {UZH_TRAIN}")
+    ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
+    ap.add_argument("--rate", type=positive, default=2.0, help="frames per second rendered")
+    ap.add_argument("--epochs", type=positive_int, default=SHIPPED.train.epochs,
+                    help="[default: the preset's, %(default)s]")
+    ap.add_argument("--budget", type=positive, default=20.0,
+                    help="minutes of training at most [default: %(default)s]")
+    ap.add_argument("--max-steps", type=positive_int, default=None,
+                    help="batches per epoch at most (smoke runs)")
+    ap.add_argument("--set", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
+                    help="DetectConfig fields (detector.*, train.*) over the preset")
+    ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "detector_cache",
+                    help="rendered flights and the training run [default: %(default)s]")
+    ap.add_argument("--out", type=Path, default=DEFAULT_DETECTOR_RUN,
+                    help="where the shipped run goes [default: %(default)s]")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    enable_compilation_cache()
+    show = not args.quiet
+
+    items = flights(args)
+    if not items:
+        ap.error("no training flights")
+    folders = [(name, cached_simulation(cfg, args.cache / "flights", name, progress=show))
+               for name, cfg in progress_bar(items, desc="flights", enabled=show, unit="flight")]
+    test_name, test_cfg = held_out(args)
+    test_folder = cached_simulation(test_cfg, args.cache / "held_out", test_name, progress=show)
+    t_sim = time.perf_counter() - t0
+
+    dataset = concat_datasets([(name, load_dataset(f, "sim")) for name, f in folders])
+    # the preset, --epochs, then --set
+    config = apply_overrides(apply_overrides(SHIPPED, {"train.epochs": args.epochs}), args.set)
+    run = args.cache / "run"
+    shutil.rmtree(run, ignore_errors=True)
+    t1 = time.perf_counter()
+    stopped_early = False
+    try:
+        train(dataset, config.detector, config.train, run,
+              progress=(lambda it, total=None, desc="": progress_bar(
+                  it, total=total, desc=desc, enabled=show, unit="batch")),
+              log=lambda line: print(line, file=sys.stderr, flush=True),
+              max_steps_per_epoch=args.max_steps,
+              on_epoch=_budget_callback(args.budget * 60.0, t1,
+                                        training_curves_writer(RunPaths(run).png)))
+    except _BudgetSpent:
+        stopped_early = True
+    t_train = time.perf_counter() - t1
+
+    metrics = json.loads(RunPaths(run).json.read_text())
+    best = next((r for r in metrics["history"] if r["epoch"] == metrics["best_epoch"]), {})
+    # the parameters stored as float16 (half the size), and scored as they ship
+    stage = export_run(run, args.cache / "export", params_dtype=PARAMS_DTYPE)
+    test = evaluate_run(stage, test_folder, "sim")
+    evaluation = {k: test[k] for k in ("map50", "map50_95", "per_class", "num_images",
+                                       "num_boxes", "checkpoint_epoch", "interpolation")}
+    evaluation["flight"] = {"name": test_name, **test_cfg.to_dict()}
+    target = export_run(stage, args.out, extra={"eval.json": evaluation})
+    summary = {
+        "held_out_map50": test["map50"], "held_out_map50_95": test["map50_95"],
+        "held_out": {"flight": test_name, "frames": test["num_images"],
+                     "boxes": test["num_boxes"]},
+        "val_map50": best.get("map50"), "val_map50_95": best.get("map50_95"),
+        "model": config.detector.model, "img_size": list(config.detector.img_size),
+        "size_mb": round(_size_bytes(target) / 1e6, 3),
+        "flights": len(folders), "frames": len(dataset), "boxes": dataset.num_boxes,
+        "epochs_run": len(metrics["history"]), "best_epoch": metrics["best_epoch"],
+        "stopped_early": stopped_early,
+        "simulate_s": round(t_sim, 1), "train_s": round(t_train, 1),
+        "wall_s": round(time.perf_counter() - t0, 1), "out": str(target),
+    }
+    print_json(summary)
+
+
+if __name__ == "__main__":
+    main()

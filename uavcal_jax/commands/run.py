@@ -1,0 +1,160 @@
+"""``uavcal run``: calibrate the IMU, fly on the VIO, find, locate and follow the target."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+from uavcal_jax.argtypes import print_json
+from uavcal_jax.config import apply_overrides
+from uavcal_jax.errors import DataError, DataRepairWarning
+
+DESCRIPTION = """\
+The whole job over one recording (an EuRoC/ASL folder, real or simulated, or a ROS bag with an
+IMU and a stereo pair): (1) estimate the IMU offset with `uavcal calib predict`'s default
+method (or take --offsets FILE, or none with --no-offset); (2) run the stereo VIO on the
+corrected IMU while (3) the detector runs on the left camera in a second thread (every frame,
+or every k-th: --set detect.every=K); (4) take the longest track of the class to follow,
+locate each of its boxes in the world (from the depth image, or from stereo disparity when the
+recording has none) and filter it (constant-velocity Kalman filter); (5) compute follow
+set-points: a fixed distance and height from the target, facing it, speed and yaw-rate
+limited.
+
+OUT receives, under these names:
+  trajectory.txt        the VIO trajectory (TUM: t x y z qx qy qz qw; body = IMU frame)
+  targets.csv           t_ns,track_id,class,x,y,z,var_x,var_y,var_z,confidence,kind: one row per
+                        frame and estimate, kind raw (one frame's localisation) or filtered;
+                        world frame of the trajectory
+  setpoints.csv         t_ns,x,y,z,yaw: one row per left frame
+  metrics.json          ate_m, offset {estimate, true, method}, target_error_m {raw, filtered:
+                        median, rmse, max}, follow, ms_per_frame (steady state, per stage) and
+                        compile_s; what needs a truth the recording lacks is null, with the
+                        reason under "omitted"
+  config.json           the resolved settings and the inputs
+  top_view.png, frames.png, localisation_error.png
+Errors against the truth are computed after aligning the trajectory to the ground truth (the
+same transform applied to the target and set-points)."""
+
+EPILOG = """\
+examples:
+  uavcal simulate --trajectory traj.txt --duration 20 --follow-targets 1 --out sim
+  uavcal run --sequence sim --out run1
+  uavcal run --sequence sim --out run2 --detector labels --no-offset --json
+  uavcal run --sequence ../shared/data/euroc_v101_micro --out run3 --detector runs/det
+  uavcal run --sequence sim --out run4 --set detect.every=2 follow.distance=5 filter.accel_psd=2
+
+--detector: a `uavcal detect train` run folder (its best weights); default the weights shipped
+in the package; `labels`: the recording's own target labels (simulated recordings), a perfect
+detector for measuring the rest of the pipeline.
+--set keys are the fields of uavcal_jax/pipeline/run_config.py's RunConfig tree (offset_method,
+vio.*, detect.*, associate.*, locate.*, stereo.*, filter.*, follow.*, warmup_frames; the
+stages' own config classes give each default and its meaning); an unknown key's error lists
+the valid ones."""
+
+#: ``--detector`` value that uses the recording's target labels.
+LABELS = "labels"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("run", help="calibrate, VIO, detect, locate and follow a target "
+                              "over a recording", description=DESCRIPTION, epilog=EPILOG,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--sequence", required=True, type=Path, metavar="DIR",
+                   help="EuRoC/ASL folder, ROS 1 .bag file or ROS 2 bag folder")
+    p.add_argument("--out", required=True, type=Path, metavar="OUT",
+                   help="output folder (created; files named as above are replaced)")
+    offset = p.add_mutually_exclusive_group()
+    offset.add_argument("--offsets", type=Path, default=None, metavar="FILE",
+                        help='remove this IMU offset instead of estimating one: a JSON file '
+                             '{"offset": [gx, gy, gz, ax, ay, az]} (uavcal calib predict\'s '
+                             'output)')
+    offset.add_argument("--no-offset", action="store_true",
+                        help="remove no IMU offset (offset_method=none)")
+    p.add_argument("--detector", default=None, metavar="RUN",
+                   help="a `uavcal detect train` run folder, or 'labels' [default: the "
+                        "shipped weights]")
+    p.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
+                   dest="overrides", help="set a setting (keys below); repeatable")
+    p.add_argument("--json", action="store_true",
+                   help="print metrics.json (one line), no progress bars")
+    p.set_defaults(func=run)
+
+
+def _detector(args, config):
+    from uavcal_jax.pipeline.detectors import LabelDetector, load_network_detector
+
+    if args.detector != LABELS:
+        return load_network_detector(args.detector, config.detect.score_threshold)
+    from uavcal_jax.data.read import read_sequence
+
+    sequence, _ = read_sequence(args.sequence)
+    if sequence.targets is None:
+        raise DataError("--detector labels needs target labels (mav0/target0), and the "
+                        "recording has none", args.sequence)
+    return LabelDetector(sequence.targets)
+
+
+def run(args) -> int:
+    from uavcal_jax.data.offset_json import read_offset_json
+    from uavcal_jax.pipeline.run_config import NO_OFFSET, RunConfig
+
+    if not args.sequence.exists():
+        raise DataError("no such file or folder", args.sequence)
+    config = apply_overrides(RunConfig(), args.overrides)
+    if args.no_offset:
+        config = apply_overrides(config, {"offset_method": NO_OFFSET})
+    offsets = read_offset_json(args.offsets) if args.offsets is not None else None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DataRepairWarning)
+        from uavcal_jax.pipeline.run import run_pipeline
+        from uavcal_jax.plots import plot_run
+
+        detector = _detector(args, config)
+        result = run_pipeline(
+            args.sequence, args.out, config, offsets=offsets, detector=detector,
+            progress=not args.json,
+            inputs={"offsets_file": None if args.offsets is None else str(args.offsets),
+                    "detector_option": args.detector, "overrides": list(args.overrides)})
+        figures = plot_run(result)
+    if not args.json:
+        # the recording is read more than once (the offset estimator reads it too): each
+        # repair is said once
+        for message in dict.fromkeys(str(w.message) for w in caught):
+            print(f"warning: {message}", file=sys.stderr)
+        for note in result.notes:
+            print(f"warning: {note}", file=sys.stderr)
+    if args.json:
+        print_json(json.loads(result.paths["metrics"].read_text()))
+        return 0
+    _print_summary(result, figures)
+    return 0
+
+
+def _print_summary(result, figures) -> None:
+    m = result.metrics
+    print(f"{m['vio']['poses']} poses from {m['vio']['frames']} frames -> {result.out_dir}")
+    o = m["offset"]
+    print(f"IMU offset ({o['method']}): " + " ".join(f"{v:.4f}" for v in o["estimate"])
+          + ("" if o["true"] is None else "  true: " + " ".join(f"{v:.4f}" for v in o["true"])))
+    if m["ate_m"] is not None:
+        print(f"ATE rmse {m['ate_m']['rmse']:.4f} m ({m['ate_m']['alignment']} alignment)")
+    d = m["detections"]
+    print(f"detections: {d['boxes']} in {d['frames_with_detections']} of {d['frames_run']} "
+          f"frames; following {d['followed_class']} track {d['followed_track']}; "
+          f"{m['localisation']['located']} boxes located ({m['localisation']['mode']})")
+    err = m["target_error_m"]
+    for kind in ("raw", "filtered"):
+        if err is not None and err[kind] is not None:
+            e = err[kind]
+            print(f"target error {kind}: median {e['median']:.3f} m, rmse {e['rmse']:.3f} m, "
+                  f"max {e['max']:.3f} m ({e['count']} frames)")
+    for key, reason in m["omitted"].items():
+        print(f"{key}: omitted ({reason})")
+    ms = m["ms_per_frame"]
+    parts = [f"{k} {ms[k]['mean']:.1f}" for k in ("vio_wall", "detect", "locate", "filter",
+                                                   "follow", "pipeline") if ms.get(k)]
+    print("ms per frame (steady state): " + ", ".join(parts))
+    print("figures: " + ", ".join(str(p) for p in figures.values()))

@@ -1,0 +1,59 @@
+"""The small detector weights shipped in the package (``uavcal run`` without ``--detector``).
+
+They are a run folder like any ``uavcal detect train`` output, cut down to ``config.json``,
+``metrics.json``, ``eval.json`` (the held-out flight's mAP) and the best checkpoint
+(:func:`uavcal_jax.detect.run.export_run`), under ``uavcal_jax/detect/weights/default/``;
+:func:`uavcal_jax.detect.run.load_run` restores them, as ``uavcal detect predict
+--checkpoint`` does. ``experiments/detector_default_weights.py`` makes them (its docstring
+holds the command, the flights and the figures reached): the simulator's two target classes
+(car, person) on frames rendered at EuRoC's 752x480 along procedural flights and real EuRoC
+and UZH-FPV trajectories, with targets placed in view (``SimConfig.follow_targets``), trained
+with the :data:`SHIPPED` preset.
+
+The preset is YZNet-YOLO-tiny (RPEOD Table 3's small model, about 1.24 M parameters; 2.6 MB
+stored, the parameters as float16) at a 256x384 (H x W) input: a 752x480 frame letterboxes
+into it at 0.51 scale (384x245 plus 11 rows of padding), where the simulator's cars (about
+130x60 px there) and people (about 30x65 px) stay well within the anchors' reach, and a frame
+costs about a quarter of the paper's 640x480 input. Training is YOLOv5's SGD recipe
+(:meth:`TrainConfig.yolov5`), batch 8, validation on a tenth of the frames every few epochs.
+
+What they are worth, measured (``python experiments/detector_default_weights.py``, the
+defaults: 8 flights -- 4 procedural, EuRoC MH_01/V1_02/MH_03, UZH-FPV indoor_forward_3 -- 20 s
+at 2 Hz, 328 frames and 954 boxes; stopped by the 20-minute budget after 6 of 8 epochs, 216
+steps, on 2 cores shared with a load of about 13): on the held-out MH_04_difficult flight (41
+frames, 119 boxes) mAP@0.5 0.208 and mAP@0.5:0.95 0.056 -- car AP@0.5 0.41, person 0.005. So
+they find cars, at a coarse box, and hardly ever people: undertrained (the loss was still
+falling). ``--budget 90 --epochs 40`` on more flights is the way to better ones.
+
+They are a demonstration on the simulator's targets, not a detector for real footage: train
+one on labelled frames of your own targets (``uavcal detect train``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from uavcal_jax.detect.config import DetectConfig, DetectorConfig, TrainConfig
+from uavcal_jax.errors import DataError
+
+__all__ = ["DEFAULT_DETECTOR_RUN", "SHIPPED", "default_detector_run"]
+
+#: The shipped run folder.
+DEFAULT_DETECTOR_RUN = Path(__file__).resolve().parent / "weights" / "default"
+
+#: The shipped detector's preset: YZNet-YOLO-tiny at 256x384 (H x W), YOLOv5's SGD recipe.
+#: ``experiments/detector_default_weights.py`` trains it (``--epochs``, ``--set`` change it).
+SHIPPED = DetectConfig(
+    detector=DetectorConfig(model="yznet-yolo-tiny", img_size=(256, 384)),
+    train=TrainConfig.yolov5(epochs=8, batch_size=8, val_fraction=0.1, eval_every=3),
+)
+
+
+def default_detector_run() -> Path:
+    """:data:`DEFAULT_DETECTOR_RUN`, checked to hold a run's ``config.json`` and its best
+    checkpoint; a :class:`~uavcal_jax.errors.DataError` naming the folder otherwise."""
+    if not (DEFAULT_DETECTOR_RUN / "config.json").is_file() or not (
+            DEFAULT_DETECTOR_RUN / "checkpoints" / "best").is_dir():
+        raise DataError("the shipped detector weights are missing from this installation "
+                        "(reinstall the package, or give --detector RUN)", DEFAULT_DETECTOR_RUN)
+    return DEFAULT_DETECTOR_RUN

@@ -1,0 +1,275 @@
+"""``uavcal run``: calibrate the IMU, fly on the VIO, find, locate, filter and follow the target,
+over one recording (:func:`run_pipeline`).
+
+Steps (RPEOD section 6.3 on a calibrated IMU):
+
+1. the IMU offset: the default estimator of ``uavcal calib predict``
+   (:func:`~uavcal_jax.pipeline.predict_offset.predict_offset`, which never reads the ground
+   truth), or a given offset, or none (``RunConfig.offset_method = "none"``);
+2. the stereo VIO (:func:`uavcal_jax.vio.run.run_vio`) on the IMU minus that offset,
+3. *concurrently* with the detector on every ``detect.every``-th left frame, in a worker
+   thread (as the VIO pipelines its own front end; XLA and OpenCV release the GIL);
+4. the target: the chosen class's longest track, each box located (depth, or stereo
+   disparity), filtered (:mod:`uavcal_jax.pipeline.targets`);
+5. the follow set-points (:func:`uavcal_jax.track.follow.follow_setpoints`) from the
+   filtered target and the VIO's pose, the yaw started from the left camera's heading.
+
+The files written in ``out_dir`` (:mod:`uavcal_jax.pipeline.run_outputs`) are named by
+:data:`~uavcal_jax.pipeline.run_outputs.OUTPUT_FILES`; the figures are drawn by
+:func:`uavcal_jax.plots.plot_run` (the plots sit above this package).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from uavcal_jax.data.read import read_sequence
+from uavcal_jax.data.sequence import Sequence
+from uavcal_jax.data.sim_config import recorded_imu_offset
+from uavcal_jax.data.true_offset import true_offset
+from uavcal_jax.detect.predict import ImageDetections
+from uavcal_jax.errors import DataError
+from uavcal_jax.pipeline.detectors import Detector, load_network_detector
+from uavcal_jax.pipeline.offset_estimators import configure_method, get_method
+from uavcal_jax.pipeline.predict_offset import predict_offset
+from uavcal_jax.pipeline.run_config import NO_OFFSET, RunConfig
+from uavcal_jax.pipeline.run_metrics import Evaluation, evaluate, follow_metrics, stage_timings
+from uavcal_jax.pipeline.run_outputs import build_metrics, write_outputs
+from uavcal_jax.pipeline.targets import TargetResult, build_localizer, track_target
+from uavcal_jax.progress import progress as progress_bar
+from uavcal_jax.track import UNSEEN, Setpoint, follow_setpoints
+from uavcal_jax.vio.run import VioResult, run_vio
+
+__all__ = ["RunResult", "run_pipeline"]
+
+
+@dataclasses.dataclass(frozen=True)
+class RunResult:
+    """A finished run (everything :func:`uavcal_jax.plots.plot_run` draws from).
+
+    Attributes:
+        out_dir: where the files are.  paths: ``{name: path}`` of the files written.
+        sequence: the recording.  config: the settings, the VIO's resolved.
+        offset: ``estimate`` (6,), ``true`` (6,) or ``None``, ``method``.
+        vio: the VIO run.  detections: per left frame (``None``: not run).
+        class_names: the detector's classes.  target: the followed target.
+        setpoints: :class:`~uavcal_jax.track.Setpoint`, ``position`` (T, 3), ``yaw`` (T,).
+        evaluation: against the truth.  metrics: ``metrics.json``'s content.
+        notes: warnings for the user (localisation off, no detection, ...).
+    """
+
+    out_dir: Path
+    paths: dict[str, Path]
+    sequence: Sequence
+    config: RunConfig
+    offset: dict
+    vio: VioResult
+    detections: list[ImageDetections | None]
+    class_names: tuple[str, ...]
+    target: TargetResult
+    setpoints: Setpoint
+    evaluation: Evaluation
+    metrics: dict
+    notes: list[str]
+
+
+def _offset(recording: Path, sequence: Sequence, config: RunConfig, offsets, progress: bool
+            ) -> dict:
+    """Step 1: ``{"estimate", "true", "method", "label", "seconds"}``."""
+    t0 = time.perf_counter()
+    recorded = recorded_imu_offset(recording) if recording.is_dir() else None
+    label, span = "total", (None, None)
+    if offsets is not None:
+        estimate, method = np.asarray(offsets, np.float64).reshape(6), "given"
+    elif config.offset_method == NO_OFFSET:
+        estimate, method = np.zeros(6), NO_OFFSET
+    else:
+        method = config.offset_method
+        options = configure_method(method)
+        if dataclasses.is_dataclass(options) and any(
+                f.name == "vio" for f in dataclasses.fields(options)):
+            options = dataclasses.replace(options, vio=config.vio)  # one VIO setting throughout
+        _, est = predict_offset(recording, method, options, progress=progress)
+        estimate, label, span = np.asarray(est.offset, np.float64), est.label, est.span_ns
+    truth = true_offset(label, recorded, sequence.ground_truth, *span)
+    return {"estimate": estimate, "true": truth, "method": method, "label": label,
+            "seconds": time.perf_counter() - t0}
+
+
+def _detect_frames(sequence: Sequence, frames: list[int], detector: Detector, threshold: float,
+                   show: bool, stop: threading.Event):
+    """Step 3, in the worker thread: per left frame the detections above ``threshold``
+    (``None`` where not run), and each detected frame's milliseconds (load + network)."""
+    cam0 = sequence.camera("cam0")
+    out: list[ImageDetections | None] = [None] * len(cam0)
+    ms = []
+    bar = progress_bar(total=len(frames), desc="detect", enabled=show, unit="frame")
+    for k in frames:
+        if stop.is_set():
+            break
+        t0 = time.perf_counter()
+        image = cam0.load(k, "rgb") if detector.needs_images else None
+        found = detector([image], [int(cam0.t_ns[k])])[0]
+        keep = np.asarray(found.scores) >= threshold
+        out[k] = ImageDetections(np.asarray(found.boxes, np.float64)[keep].reshape(-1, 4),
+                                 np.asarray(found.scores, np.float64)[keep],
+                                 np.asarray(found.classes, np.int64)[keep])
+        ms.append(1e3 * (time.perf_counter() - t0))
+        bar.update(1)
+    bar.close()
+    return out, np.asarray(ms)
+
+
+def _vio_and_detect(sequence: Sequence, config: RunConfig, offset: np.ndarray,
+                    detector: Detector, show: bool):
+    """Steps 2 and 3 at once: the detector in a worker thread beside the VIO."""
+    frames = list(range(0, len(sequence.camera("cam0")), config.detect.every))
+    stop = threading.Event()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="detector") as pool:
+        job = pool.submit(_detect_frames, sequence, frames, detector,
+                          config.detect.score_threshold, show, stop)
+        try:
+            vio = run_vio(sequence, config.vio, offset, show_progress=show)
+        except BaseException:
+            stop.set()
+            raise
+        detections, detect_ms = job.result()
+    return vio, detections, detect_ms, len(frames)
+
+
+def _poses(vio: VioResult) -> list[np.ndarray | None]:
+    out = []
+    for f in vio.frames:
+        if not f.has_pose or not np.all(np.isfinite(f.position)):
+            out.append(None)
+            continue
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = f.rotation, f.position
+        out.append(T)
+    return out
+
+
+def _follow(times_s: np.ndarray, target: TargetResult, poses, T_BC: np.ndarray,
+            config: RunConfig) -> tuple[Setpoint, tuple[float, float]]:
+    """Step 5 over all frames (twice: the first call compiles), from the first pose's
+    position and the left camera's heading."""
+    have = [k for k, T in enumerate(poses) if T is not None]
+    drone = np.full((len(poses), 3), np.nan)
+    for k in have:
+        drone[k] = poses[k][:3, 3]
+    # frames without a pose: the nearest earlier pose (the first pose before it)
+    last = drone[have[0]]
+    for k in range(len(poses)):
+        last = drone[k] if poses[k] is not None else last
+        drone[k] = last
+    axis = poses[have[0]][:3, :3] @ T_BC[:3, 2]  # the left camera's optical axis, world
+    start = Setpoint(drone[0], np.arctan2(axis[1], axis[0]))
+    known = target.filtered.status != UNSEEN
+    ms = []
+    for _ in range(2):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(follow_setpoints(times_s, target.filtered.position, known,
+                                                     drone, start, config.follow))
+        ms.append(1e3 * (time.perf_counter() - t0))
+    return Setpoint(np.asarray(out.position, np.float64), np.asarray(out.yaw, np.float64)), \
+        tuple(ms)
+
+
+def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig | None = None,
+                 *, offsets=None, detector: Detector | None = None, progress: bool = True,
+                 inputs: dict | None = None) -> RunResult:
+    """Run the whole pipeline over ``recording`` and write its files into ``out_dir``.
+
+    Args:
+        recording: an EuRoC/ASL folder (real or simulated) or a ROS bag, with an IMU and a
+            stereo pair (the VIO's needs).
+        out_dir: the output folder (created).
+        config: :class:`~uavcal_jax.pipeline.run_config.RunConfig` (``None``: defaults).
+        offsets: (6,) an IMU offset to remove instead of estimating one, or ``None``.
+        detector: a :class:`~uavcal_jax.pipeline.detectors.Detector`; ``None``: the weights
+            shipped in the package.
+        progress: a progress bar per stage on stderr.
+        inputs: extra entries for ``config.json``'s ``inputs`` (the command line).
+
+    Raises:
+        DataError: not a recording, no shipped weights (with ``detector=None``), a class to
+            follow the detector does not know, a VIO that never initialises, ...
+    """
+    t_start = time.perf_counter()
+    config = RunConfig() if config is None else config
+    recording, out_dir = Path(recording), Path(out_dir)
+    sequence, fmt = read_sequence(recording)
+    if "cam0" not in sequence.cameras or len(sequence.camera("cam0")) == 0:
+        raise DataError("the recording has no left camera frames (cam0)", recording)
+    if detector is None:
+        detector = load_network_detector(None, config.detect.score_threshold)
+    if config.detect.follow_class not in detector.class_names:
+        raise DataError(f"detect.follow_class={config.detect.follow_class!r} is not a class "
+                        f"of the detector (its classes: {', '.join(detector.class_names)})")
+    if offsets is None and config.offset_method != NO_OFFSET:
+        get_method(config.offset_method)  # an unknown name fails before any work
+    localizer = build_localizer(sequence, config)
+    offset = _offset(recording, sequence, config, offsets, progress)
+    t0 = time.perf_counter()
+    vio, detections, detect_ms, detected_frames = _vio_and_detect(
+        sequence, config, offset["estimate"], detector, progress)
+    vio_detect_s = time.perf_counter() - t0
+    trajectory = vio.trajectory()
+    if len(trajectory) == 0:
+        raise DataError(f"the VIO never initialised (no frame had "
+                        f"{vio.config.min_init_landmarks} stereo corners)", recording)
+    config = dataclasses.replace(config, vio=vio.config)
+    poses = _poses(vio)
+    t0 = time.perf_counter()
+    target = track_target(sequence, detections, detector.class_names, poses, config, localizer)
+    cam0 = sequence.camera("cam0")
+    times_s = (cam0.t_ns - cam0.t_ns[0]).astype(np.float64) * 1e-9
+    setpoints, follow_ms = _follow(times_s, target, poses, np.asarray(cam0.calibration.T_BS),
+                                   config)
+    track_s = time.perf_counter() - t0
+    evaluation = evaluate(sequence, trajectory, target, setpoints.position)
+    ms, compile_s = stage_timings([f.timings for f in vio.frames], detect_ms, target, follow_ms,
+                                  len(cam0), config.detect.every, config.warmup_frames)
+    follow = follow_metrics(times_s, setpoints.position, setpoints.yaw, target, evaluation,
+                            config, detected_frames)
+    notes = _notes(target, detections, detector)
+    metrics = build_metrics(
+        recording=recording, fmt=fmt, vio=vio, offset=offset, detections=detections,
+        detected_frames=detected_frames, class_names=detector.class_names, target=target,
+        evaluation=evaluation, follow=follow, ms_per_frame=ms, compile_s=compile_s,
+        seconds={"offset": offset["seconds"], "vio_and_detect": vio_detect_s,
+                 "track_and_follow": track_s}, notes=notes)
+    paths = write_outputs(out_dir, trajectory=trajectory, times_ns=cam0.t_ns, target=target,
+                          evaluation=evaluation, setpoints=setpoints, metrics=metrics,
+                          config=config, inputs={"sequence": str(recording),
+                                                 "out": str(out_dir),
+                                                 "detector": str(getattr(detector, "source",
+                                                                         type(detector).__name__)),
+                                                 **(inputs or {})},
+                          t_start=t_start)
+    return RunResult(out_dir, paths, sequence, config, offset, vio, detections,
+                     tuple(detector.class_names), target, setpoints, evaluation, metrics, notes)
+
+
+def _notes(target: TargetResult, detections, detector: Detector) -> list[str]:
+    """What the user should know: localisation off, nothing detected, boxes not located."""
+    notes = []
+    if target.localisation["mode"] == "off":
+        notes.append(target.localisation["reason"])
+    boxes = sum(len(d.boxes) for d in detections if d is not None)
+    if boxes == 0:
+        notes.append("the detector found no target in any frame")
+    elif target.track_id is None:
+        notes.append(f"no {target.class_name} detected (classes: "
+                     f"{', '.join(detector.class_names)})")
+    for reason, count in sorted(target.not_located.items()):
+        if target.localisation["mode"] != "off":
+            notes.append(f"{count} of the followed target's boxes not located: {reason}")
+    return notes

@@ -1,0 +1,137 @@
+"""What ``uavcal run`` writes into its output folder, under fixed names (:data:`OUTPUT_FILES`),
+and the content of ``metrics.json`` (:func:`build_metrics`).
+
+Positions in ``targets.csv`` and ``setpoints.csv`` are in the trajectory's (the VIO's) world
+frame, as ``trajectory.txt``; only the metrics are computed after aligning to the ground
+truth (:mod:`uavcal_jax.pipeline.run_metrics`). The tables' format is
+:mod:`uavcal_jax.data.run_tables`.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from uavcal_jax.config import write_config
+from uavcal_jax.data.run_tables import write_setpoints, write_targets
+from uavcal_jax.data.tum import write_tum
+from uavcal_jax.pipeline.run_config import RunConfig
+from uavcal_jax.pipeline.run_metrics import Evaluation, statistics
+from uavcal_jax.pipeline.targets import TargetResult
+from uavcal_jax.track import PREDICTING, TRACKING
+
+__all__ = ["FIGURE_FILES", "OUTPUT_FILES", "build_metrics", "target_rows", "write_outputs"]
+
+#: The files of the output folder, by role.
+OUTPUT_FILES = {"trajectory": "trajectory.txt", "targets": "targets.csv",
+                "setpoints": "setpoints.csv", "metrics": "metrics.json",
+                "config": "config.json"}
+#: The figures (:func:`uavcal_jax.plots.plot_run`), by role.
+FIGURE_FILES = {"top_view": "top_view.png", "frames": "frames.png",
+                "localisation_error": "localisation_error.png"}
+
+
+def target_rows(times_ns: np.ndarray, target: TargetResult, lost_after_s: float) -> list[tuple]:
+    """``targets.csv``'s rows (:func:`uavcal_jax.data.run_tables.write_targets`), time order.
+
+    ``raw``: each located box, confidence its detection score. ``filtered``: each frame the
+    filter tracks or predicts the target; confidence the last used detection's score, fading
+    linearly to 0 over ``lost_after_s`` without a measurement.
+    """
+    rows = []
+    track, name = target.track_id, target.class_name
+    if track is None:
+        return rows
+    raw_at = {int(k): i for i, k in enumerate(target.raw_frames)}
+    f = target.filtered
+    last_score, last_t = 0.0, None
+    t_s = (times_ns - times_ns[0]) * 1e-9
+    for k, t_ns in enumerate(times_ns):
+        i = raw_at.get(k)
+        if i is not None:
+            rows.append((t_ns, track, name, target.raw_points[i], np.diag(target.raw_cov[i]),
+                         float(target.scores[k]), "raw"))
+        if f.status[k] == TRACKING:
+            last_score, last_t = float(target.scores[k]), t_s[k]
+        if f.status[k] in (TRACKING, PREDICTING) and np.all(np.isfinite(f.position[k])):
+            age = 0.0 if last_t is None else t_s[k] - last_t
+            conf = last_score * max(0.0, 1.0 - age / lost_after_s)
+            rows.append((t_ns, track, name, f.position[k], np.diag(f.covariance[k])[:3],
+                         conf, "filtered"))
+    return rows
+
+
+def build_metrics(*, recording, fmt, vio, offset, detections, detected_frames, class_names,
+                  target: TargetResult, evaluation: Evaluation, follow, ms_per_frame, compile_s,
+                  seconds, notes) -> dict:
+    """``metrics.json``: ``ate_m``, ``offset``, ``target_error_m``, ``follow``,
+    ``ms_per_frame`` (and ``compile_s``) as the issue names them, and what explains them:
+    ``vio`` (frames, poses, resets), ``detections``, ``localisation``, ``omitted`` (the
+    metrics left out for want of a truth, and why), ``seconds`` per step, ``notes``."""
+    truth = offset["true"]
+    estimate = np.asarray(offset["estimate"], np.float64)
+    by_class = collections.Counter(int(c) for d in detections if d is not None
+                                   for c in d.classes)
+    target_error = None
+    if evaluation.truth is not None:
+        target_error = {"raw": statistics(evaluation.raw_errors),
+                        "filtered": statistics(evaluation.filtered_errors)}
+    traj = vio.trajectory()
+    return {
+        "sequence": str(recording), "format": fmt,
+        "ate_m": evaluation.ate_m,
+        "offset": {"estimate": estimate.tolist(),
+                   "true": None if truth is None else np.asarray(truth).tolist(),
+                   "error": None if truth is None else (estimate - truth).tolist(),
+                   "method": offset["method"], "label": offset["label"]},
+        "target_error_m": target_error,
+        "follow": follow,
+        "ms_per_frame": ms_per_frame,
+        "compile_s": compile_s,
+        "vio": {"frames": len(vio.frames), "poses": len(traj), "resets": vio.resets,
+                "unreadable_frames": vio.unreadable},
+        "detections": {"frames_run": detected_frames,
+                       "frames_with_detections": sum(1 for d in detections
+                                                     if d is not None and len(d.boxes)),
+                       "boxes": int(sum(by_class.values())),
+                       "by_class": {class_names[c] if 0 <= c < len(class_names) else str(c): n
+                                    for c, n in sorted(by_class.items())},
+                       "followed_class": target.class_name, "followed_track": target.track_id,
+                       "true_track": evaluation.true_track_id},
+        "localisation": {**target.localisation, "located": len(target.raw_frames),
+                         "not_located": target.not_located},
+        "omitted": evaluation.omitted,
+        "seconds": seconds,
+        "notes": notes,
+    }
+
+
+def write_outputs(out_dir: Path, *, trajectory, times_ns, target: TargetResult,
+                  evaluation: Evaluation, setpoints, metrics: dict, config: RunConfig,
+                  inputs: dict, t_start: float) -> dict[str, Path]:
+    """Write :data:`OUTPUT_FILES` into ``out_dir`` (created); ``metrics["seconds"]["total"]``
+    is set last (from ``t_start``, a ``time.perf_counter()``). Returns the paths by role."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {k: out_dir / v for k, v in OUTPUT_FILES.items()}
+    write_tum(paths["trajectory"], trajectory)
+    write_targets(paths["targets"], target_rows(np.asarray(times_ns), target,
+                                                config.filter.lost_after))
+    write_setpoints(paths["setpoints"], times_ns, setpoints.position, setpoints.yaw)
+    write_config(paths["config"], config, inputs=inputs)
+    metrics["seconds"]["total"] = time.perf_counter() - t_start
+    paths["metrics"].write_text(json.dumps(metrics, indent=1, default=_json) + "\n")
+    return paths
+
+
+def _json(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

@@ -1,0 +1,254 @@
+"""Detections -> the target to follow, located and filtered in the VIO's world frame.
+
+The middle of ``uavcal run`` (:func:`uavcal_jax.pipeline.run.run_pipeline`), after the VIO
+and the detector have run over a recording:
+
+1. the detections of every detected frame are associated into tracks
+   (:func:`uavcal_jax.track.associate.assign_track_ids`) and the longest track of the class
+   to follow is the target (:func:`~uavcal_jax.track.associate.longest_track`);
+2. each of its boxes is located (:class:`Localizer`): from the depth image (``depth0``) when
+   the recording has one, else from the stereo pair's disparity (``cam1``), else not at all,
+   with the reason; a box cut by the image border, or a frame without a VIO pose, is not
+   located either;
+3. the located points are filtered over every left frame (the filter predicts between
+   detections, :func:`uavcal_jax.track.filter.run_filter`).
+
+Frames: ``T_WB`` the VIO's body pose (world = the VIO's gravity-aligned frame), ``T_BC`` the
+left camera's extrinsic from the recording's calibration. Times in the filter are seconds
+since the first left frame.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import time
+
+import jax
+import numpy as np
+
+from uavcal_jax.data.sequence import Sequence
+from uavcal_jax.detect.predict import ImageDetections
+from uavcal_jax.errors import DataError
+from uavcal_jax.geometry.camera import from_calibration
+from uavcal_jax.pipeline.run_config import RunConfig
+from uavcal_jax.track import REASONS, FilterOutput, assign_track_ids, locate_box, longest_track
+from uavcal_jax.track.filter import run_filter
+from uavcal_jax.track.stereo import locate_box_stereo, rectify_stereo
+
+__all__ = ["LOCALISATION_MODES", "Localizer", "LocatedPoint", "TargetResult", "build_localizer",
+           "filter_target", "track_target"]
+
+#: How a recording's boxes are located: from its depth images, its stereo pair, or not at all.
+LOCALISATION_MODES = ("depth", "stereo", "off")
+#: Why a box was not located, besides the localisation's own :data:`uavcal_jax.track.REASONS`.
+NO_POSE, BORDER = "no VIO pose at the frame", "box cut by the image border"
+
+
+@dataclasses.dataclass(frozen=True)
+class LocatedPoint:
+    """One box's localisation: ``point`` (3,) world metres and ``covariance`` (3, 3) m^2
+    (NaN unless ``reason == "located"``)."""
+
+    point: np.ndarray
+    covariance: np.ndarray
+    reason: str
+
+    @property
+    def located(self) -> bool:
+        return self.reason == REASONS[0]
+
+
+class Localizer:
+    """Locates left-image boxes of one recording (``mode`` one of :data:`LOCALISATION_MODES`;
+    ``reason`` says why it is off). Build it with :func:`build_localizer`."""
+
+    def __init__(self, sequence: Sequence, config: RunConfig, mode: str, reason: str = ""):
+        self.mode, self.reason = mode, reason
+        self._config = config
+        self._extent = config.detect.target_extent()
+        cam0 = sequence.camera("cam0")
+        self._left = cam0
+        self._size = cam0.calibration.resolution
+        self._T_BC = np.asarray(cam0.calibration.T_BS, np.float64)
+        self._camera = from_calibration(cam0.calibration)
+        self._depth = sequence.depth.get("depth0")
+        self._depth_index = {} if self._depth is None else {
+            int(t): i for i, t in enumerate(self._depth.t_ns)}
+        self._right = sequence.cameras.get("cam1")
+        self._right_index = {} if self._right is None else {
+            int(t): i for i, t in enumerate(self._right.t_ns)}
+        self._rect = None
+        if mode == "stereo":
+            self._rect = rectify_stereo(self._camera, from_calibration(self._right.calibration),
+                                        self._T_BC, self._right.calibration.T_BS)
+
+    def cut_by_border(self, box) -> bool:
+        """The box reaches within ``detect.border_px`` of the image border."""
+        margin = self._config.detect.border_px
+        if margin < 0:
+            return False
+        w, h = self._size
+        x1, y1, x2, y2 = (float(v) for v in box)
+        return x1 <= margin or y1 <= margin or x2 >= w - margin or y2 >= h - margin
+
+    def locate(self, frame: int, box, T_WB: np.ndarray | None) -> LocatedPoint:
+        """The world point of ``box`` (4,) in left frame ``frame`` seen from pose ``T_WB``
+        (4, 4) (``None``: no pose)."""
+        nan = LocatedPoint(np.full(3, np.nan), np.full((3, 3), np.nan), self.reason)
+        if self.mode == "off":
+            return nan
+        if T_WB is None or not np.all(np.isfinite(T_WB)):
+            return dataclasses.replace(nan, reason=NO_POSE)
+        if self.cut_by_border(box):
+            return dataclasses.replace(nan, reason=BORDER)
+        t_ns = int(self._left.t_ns[frame])
+        cfg = self._config.locate
+        if self.mode == "depth":
+            i = self._depth_index.get(t_ns)
+            if i is None:
+                return dataclasses.replace(nan, reason="no depth image at the frame")
+            out = locate_box(np.asarray(box, np.float32), self._depth.load(i), self._camera,
+                             self._T_BC, T_WB, self._extent, cfg)
+        else:
+            j = self._right_index.get(t_ns)
+            if j is None:
+                return dataclasses.replace(nan, reason="no right image at the frame")
+            out = locate_box_stereo(box, self._left.load(frame), self._right.load(j), self._rect,
+                                    self._T_BC, T_WB, self._extent, cfg, self._config.stereo)
+        reason = REASONS[int(out.reason)]
+        return LocatedPoint(np.asarray(out.point, np.float64),
+                            np.asarray(out.covariance, np.float64), reason)
+
+
+def build_localizer(sequence: Sequence, config: RunConfig) -> Localizer:
+    """The recording's :class:`Localizer`: ``depth`` with a ``depth0`` stream, else ``stereo``
+    with a ``cam1``, else ``off`` with the reason."""
+    if "depth0" in sequence.depth:
+        return Localizer(sequence, config, "depth")
+    if "cam1" in sequence.cameras:
+        try:
+            return Localizer(sequence, config, "stereo")
+        except ValueError as err:  # a rig stereo matching cannot use
+            return Localizer(sequence, config, "off", f"localisation off: {err}")
+    return Localizer(sequence, config, "off", "localisation off: the recording has no depth "
+                     "image (depth0) and no right camera (cam1)")
+
+
+@dataclasses.dataclass(frozen=True)
+class TargetResult:
+    """The followed target over the recording's ``T`` left frames.
+
+    Attributes:
+        class_name, class_id: the class followed.
+        track_id: the followed track (``None``: no detection of the class).
+        track_ids: per left frame, the track id of each detection (``None``: not detected).
+        boxes: (T, 4) the followed track's box per frame (NaN where it has none).
+        scores: (T,) its score (NaN where none).
+        raw_frames: (R,) the frames whose box was located; raw_points (R, 3), raw_cov
+            (R, 3, 3): the localisations (world, metres).
+        not_located: ``{reason: count}`` of the followed boxes that were not located.
+        filtered: :class:`~uavcal_jax.track.FilterOutput` (NumPy), one row per frame.
+        localisation: ``mode`` (:data:`LOCALISATION_MODES`) and ``reason`` (why it is off).
+        locate_ms: per located box, milliseconds (the first includes compilation).
+        filter_ms: ``(first, second)`` call of the filter over all frames, milliseconds (the
+            first compiles).
+    """
+
+    class_name: str
+    class_id: int
+    track_id: int | None
+    track_ids: list[np.ndarray | None]
+    boxes: np.ndarray
+    scores: np.ndarray
+    raw_frames: np.ndarray
+    raw_points: np.ndarray
+    raw_cov: np.ndarray
+    not_located: dict[str, int]
+    filtered: FilterOutput
+    localisation: dict[str, str]
+    locate_ms: np.ndarray
+    filter_ms: tuple[float, float]
+
+
+def _class_id(class_names, name: str) -> int:
+    if name not in class_names:
+        raise DataError(f"detect.follow_class={name!r} is not a class of the detector "
+                        f"(its classes: {', '.join(class_names) or 'none'})")
+    return list(class_names).index(name)
+
+
+def filter_target(times_s: np.ndarray, raw_frames: np.ndarray, raw_points: np.ndarray,
+                  raw_cov: np.ndarray, config: RunConfig) -> tuple[FilterOutput, tuple]:
+    """The filter over all ``T`` frames (times ``times_s`` (T,), seconds) with the raw
+    localisations at ``raw_frames``; returns its output (NumPy) and the two calls' times in
+    milliseconds (the first compiles, the second is the steady state)."""
+    T = times_s.shape[0]
+    z = np.zeros((T, 3))
+    R = np.tile(np.eye(3), (T, 1, 1))
+    valid = np.zeros(T, bool)
+    z[raw_frames], R[raw_frames], valid[raw_frames] = raw_points, raw_cov, True
+    ms = []
+    for _ in range(2):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(run_filter(times_s, z, R, valid, config.filter))
+        ms.append(1e3 * (time.perf_counter() - t0))
+    return FilterOutput(*(np.asarray(a) for a in out)), tuple(ms)
+
+
+def track_target(sequence: Sequence, detections: list[ImageDetections | None],
+                 class_names, poses: list[np.ndarray | None], config: RunConfig,
+                 localizer: Localizer) -> TargetResult:
+    """Associate, choose, locate and filter (the module docstring's steps).
+
+    Args:
+        sequence: the recording (its left camera's frames index everything).
+        detections: per left frame, the detections (score-thresholded), or ``None`` where the
+            detector did not run.
+        class_names: the detector's classes.
+        poses: per left frame, the VIO's ``T_WB`` (4, 4), or ``None`` without a pose.
+        config: the run's settings.
+        localizer: :func:`build_localizer`'s.
+
+    Raises:
+        DataError: ``detect.follow_class`` is not one of ``class_names``.
+    """
+    class_id = _class_id(class_names, config.detect.follow_class)
+    cam0 = sequence.camera("cam0")
+    T = len(cam0)
+    ran = [k for k in range(T) if detections[k] is not None]
+    ids_ran = assign_track_ids([detections[k].boxes for k in ran],
+                               [detections[k].classes for k in ran], config.associate)
+    track_ids: list[np.ndarray | None] = [None] * T
+    for k, ids in zip(ran, ids_ran, strict=True):
+        track_ids[k] = ids
+    chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id)
+    boxes, scores = np.full((T, 4), np.nan), np.full(T, np.nan)
+    raw_frames, points, covs, locate_ms = [], [], [], []
+    not_located: collections.Counter = collections.Counter()
+    if chosen is not None:
+        for k in ran:
+            hit = np.flatnonzero(track_ids[k] == chosen)
+            if hit.size == 0:
+                continue
+            boxes[k], scores[k] = detections[k].boxes[hit[0]], detections[k].scores[hit[0]]
+            t0 = time.perf_counter()
+            located = localizer.locate(k, boxes[k], poses[k])
+            locate_ms.append(1e3 * (time.perf_counter() - t0))
+            if located.located:
+                raw_frames.append(k)
+                points.append(located.point)
+                covs.append(located.covariance)
+            else:
+                not_located[located.reason] += 1
+    times_s = (cam0.t_ns - cam0.t_ns[0]).astype(np.float64) * 1e-9
+    raw_frames = np.asarray(raw_frames, np.int64)
+    raw_points = np.asarray(points, np.float64).reshape(-1, 3)
+    raw_cov = np.asarray(covs, np.float64).reshape(-1, 3, 3)
+    filtered, filter_ms = filter_target(times_s, raw_frames, raw_points, raw_cov, config)
+    return TargetResult(
+        class_name=config.detect.follow_class, class_id=class_id, track_id=chosen,
+        track_ids=track_ids, boxes=boxes, scores=scores, raw_frames=raw_frames,
+        raw_points=raw_points, raw_cov=raw_cov, not_located=dict(not_located),
+        filtered=filtered, localisation={"mode": localizer.mode, "reason": localizer.reason},
+        locate_ms=np.asarray(locate_ms), filter_ms=filter_ms)
