@@ -34,7 +34,6 @@ from uavcal_jax.calib.data import load_windows
 from uavcal_jax.calib.loop import export_weights, fit
 from uavcal_jax.calib.presets import PRESETS, resolve_configs
 from uavcal_jax.calib.pretrained import DEFAULT_WEIGHTS
-from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
 from uavcal_jax.sim.training_sets import RENDER_RESOLUTION, SimSetConfig, simulated_set
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +70,7 @@ def main() -> None:
     config, loop, window = run.calib, run.loop, run.window
     # whole flights held out (overlapping windows of one flight share frames: a split over
     # windows would validate on frames it trained on)
-    parts = load_windows(folders, window, rotation_source=visual_rotation_source)
+    parts = load_windows(folders, window)
     n_val = max(1, round(loop.val_fraction * len(parts)))
     train, val = parts[:-n_val], parts[-n_val:]
     shutil.rmtree(args.run, ignore_errors=True)

@@ -40,17 +40,12 @@ SMALL = CalibRunConfig(
     train=TrainConfig(learning_rate=1e-3, patience=10),
     window=WindowConfig(size=(160, 96), frame_step=2))
 #: The shipped weights: ``small`` with the physical protocol (offsets in the range of real
-#: IMU biases, like the demo's) and its label, the total constant error a user subtracts; 2 s
-#: windows every 0.5 s at the full 20 Hz (the demo's 3 s flight holds some); the camera's
-#: motion as rotation-residual tokens from the front end's visual rotations (the pixel path
-#: alone sees no motion: one frame per token), the gyro head starting from their least
-#: squares and each frame's IMU the mean of its interval; at most 60 epochs with patience 6
-#: on the validation loss, the best checkpoint only.
+#: IMU biases, like the demo's), 2 s windows every 0.5 s at the full 20 Hz (the demo's 3 s
+#: flight holds some), at most 60 epochs with patience 6 on the validation loss, the best
+#: checkpoint only.
 SHIPPED = apply_overrides(SMALL, {
     "injection.protocol": "physical", "train.epochs": 60, "train.patience": 6,
     "window.duration": 2.0, "window.stride": 0.5, "window.frame_step": 1,
-    "window.rotations": "visual", "window.imu_sampling": "interval_mean",
-    "model.motion_tokens": True, "model.closed_form": "rotation_ls",
     "loop.monitor": "val", "loop.keep": 1})
 #: The named presets (``--preset``).
 PRESETS: dict[str, CalibRunConfig] = {"paper": PAPER, "small": SMALL, "shipped": SHIPPED}
