@@ -28,7 +28,7 @@ restored as float32), plus that evaluation (``eval.json``), is written atomicall
 
 Usage::
 
-    python experiments/detector_default_weights.py                 # about 25 min, 2 cores
+    python experiments/detector_default_weights.py                 # about 40 min, 2 cores
     python experiments/detector_default_weights.py --procedural 1 --euroc-flights 0 \
         --uzh-flights 0 --duration 4 --epochs 1 --max-steps 2 --out /tmp/det_smoke  # smoke
 
@@ -137,16 +137,16 @@ def _budget_callback(budget_s: float, t_start: float, curves):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--procedural", type=int, default=4, help="procedural flights")
-    ap.add_argument("--euroc-flights", type=int, default=3,
+    ap.add_argument("--procedural", type=int, default=8, help="procedural flights")
+    ap.add_argument("--euroc-flights", type=int, default=6,
                     help=f"EuRoC trajectories, the first of {EUROC_TRAIN}")
-    ap.add_argument("--uzh-flights", type=int, default=1,
+    ap.add_argument("--uzh-flights", type=int, default=2,
                     help=f"UZH-FPV indoor trajectories, the first of {UZH_TRAIN}")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
     ap.add_argument("--rate", type=positive, default=2.0, help="frames per second rendered")
     ap.add_argument("--epochs", type=positive_int, default=SHIPPED.train.epochs,
                     help="[default: the preset's, %(default)s]")
-    ap.add_argument("--budget", type=positive, default=20.0,
+    ap.add_argument("--budget", type=positive, default=85.0,
                     help="minutes of training at most [default: %(default)s]")
     ap.add_argument("--max-steps", type=positive_int, default=None,
                     help="batches per epoch at most (smoke runs)")

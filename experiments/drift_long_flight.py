@@ -48,9 +48,7 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
-from uavcal_jax.argtypes import parse_resolution, positive, print_json
+from uavcal_jax.argtypes import parse_resolution, positive, print_json, to_builtin
 from uavcal_jax.pipeline.drift import (
     FLIGHT_KINDS,
     RAW,
@@ -170,7 +168,7 @@ def main(argv=None) -> dict:
                             title="position error against distance travelled")
     summary = _without_curves(results)
     js = args.out / "drift.json"
-    js.write_text(json.dumps(json.loads(json.dumps(summary, default=_builtin)), indent=1))
+    js.write_text(json.dumps(json.loads(json.dumps(summary, default=to_builtin)), indent=1))
     print(text)
     wall = time.perf_counter() - t0
     brief = {flight: {name: {"vio_final_m": row["vio"]["final_error_m"],
@@ -184,13 +182,6 @@ def main(argv=None) -> dict:
     print_json(out)
     return out
 
-
-def _builtin(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON: {type(value)}")
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ def test_help_documents_every_option(capsys):
         assert option in out, option
     assert "first timestamp" in out  # --start is relative to the file's first timestamp
     code, out, _ = _run(capsys, "demo", "--help")
-    assert code == 0 and "--keep" in out and "--json" in out
+    assert code == 0 and all(o in out for o in ("--out", "--seed", "--imu-offset", "--json"))
 
 
 def _simulate_parser() -> argparse.ArgumentParser:
@@ -205,30 +205,33 @@ def test_bad_options_are_usage_errors(capsys, tmp_path, bad):
     assert code == 2 and "usage" in err
 
 
-def test_demo_json_keep(capsys, tmp_path):
-    keep = tmp_path / "demo"
-    code, out, err = _run(capsys, "demo", "--json", "--keep", str(keep))
+def test_demo_json(capsys, tmp_path):
+    """The main job end to end, as a fresh install runs it (``uavcal demo --json``)."""
+    out = tmp_path / "demo"
+    code, printed, err = _run(capsys, "demo", "--json", "--out", str(out))
     assert code == 0, err
-    result = json.loads(out.strip().splitlines()[-1])
-    assert [k for k in result if k != "seconds"] == ["simulate", "read", "calibrate", "vio"]
-    summary = result["read"]
+    result = json.loads(printed.strip().splitlines()[-1])
+    assert result["out"] == str(out)
+    assert list(result["steps"]) == ["simulate", "read", "calibrate"]
+    assert set(result["step_seconds"]) == {"simulate", "read", "calibrate", "run", "total"}
+    summary = result["steps"]["read"]
     assert set(summary["cameras"]) == {"cam0", "cam1"}
     assert set(summary["depth"]) == {"depth0", "depth1"}
-    assert summary["imu"]["samples"] == 601  # 3 s at 200 Hz
-    assert summary["cameras"]["cam0"]["frames"] == 61
+    assert summary["imu"]["samples"] == 2401  # 12 s at 200 Hz
+    assert summary["cameras"]["cam0"]["frames"] == 241
     assert summary["targets"]["present"]
     assert summary["warnings"] == []
-    assert (keep / "mav0" / "cam0" / "data.csv").is_file()
-    assert (keep / "sim_config.json").is_file()
+    recording = out / "recording"
+    assert (recording / "mav0" / "cam0" / "data.csv").is_file()
     # The calibrate step: the truth is the offset written into the IMU (sim_config.json
     # records it) plus the simulated sensor's own bias (the ground truth's bias columns)
-    calib = result["calibrate"]
-    recorded = json.loads((keep / "sim_config.json").read_text())["config"]["imu_offset"]
+    calib = result["steps"]["calibrate"]
+    recorded = json.loads((recording / "sim_config.json").read_text())["config"]["imu_offset"]
     np.testing.assert_allclose(calib["injected"], recorded)
-    gt = read_euroc(keep).ground_truth
+    gt = read_euroc(recording).ground_truth
     bias = np.concatenate([gt.bias_gyro, gt.bias_accel], axis=1).mean(axis=0)
-    np.testing.assert_allclose(calib["true"], np.add(recorded, bias), atol=1e-12)
-    np.testing.assert_allclose(calib["no_correction_error"], -np.asarray(calib["true"]))
+    true = np.add(recorded, bias)
+    np.testing.assert_allclose(calib["true"], true, atol=1e-12)
     methods = calib["methods"]
     assert list(methods) == ["vio-bias", "visual-ls", "transformer"]
     for m in methods.values():
@@ -236,18 +239,35 @@ def test_demo_json_keep(capsys, tmp_path):
     # blind estimates (no ground truth read) of the gyro within 5e-3 rad/s per axis
     for name in ("vio-bias", "visual-ls"):
         assert np.all(np.abs(methods[name]["error"][:3]) < 5e-3), (name, methods[name])
-    # the VIO's accel bias: closer to the truth than no correction, as a vector
-    vio_accel = np.linalg.norm(methods["vio-bias"]["error"][3:])
-    assert vio_accel < 0.5 * np.linalg.norm(calib["true"][3:])
-    # the shipped transformer (trained on physical-range offsets, per-axis |gyro| <= 0.08
-    # rad/s, |accel| <= 0.16 m/s^2): one estimate per channel inside that range (an
-    # untrained or mis-restored model gives values of order 1)
-    est = np.asarray(methods["transformer"]["offset"])
-    assert np.all(np.abs(est[:3]) <= 0.08) and np.all(np.abs(est[3:]) <= 0.16), est
-    # The VIO step tracks the whole flight with vio-bias's estimate removed
-    vio = result["vio"]
-    assert vio["poses"] == vio["frames"] == 61 and vio["nan_poses"] == 0
-    assert vio["ate_m"]["rmse"] < 0.05
+    # the run removes the default method's estimate: closer to the truth than no correction
+    # on every gyro channel and on the accelerometer's vertical one (gravity lies along the
+    # body's x here); the horizontal accelerometer channels trade with tilt and converge only
+    # as the drone turns (12 s is short: issue 22 keeps them open)
+    offset = result["offset"]
+    assert offset["method"] == "vio-bias"
+    np.testing.assert_allclose(offset["estimate"], methods["vio-bias"]["offset"])
+    error = np.subtract(offset["estimate"], offset["true"])
+    assert np.all(np.abs(error[:3]) < 0.2 * np.abs(offset["true"][:3])), (error, offset["true"])
+    assert abs(error[3]) < 0.5 * abs(offset["true"][3]), (error, offset["true"])
+    # the run: a pose on every frame, the VIO on track, the car found and located
+    assert result["vio"]["poses"] == result["vio"]["frames"] == 241
+    assert result["ate_m"]["rmse"] < 0.05
+    assert result["detections"]["followed_class"] == "car"
+    assert result["detections"]["true_track"] is not None  # the followed track is a labelled car
+    filtered = result["target_error_m"]["filtered"]
+    assert filtered["median"] <= 0.5 and np.isfinite(filtered["rmse"]), filtered
+    assert all(np.isfinite(v["mean"]) for v in result["ms_per_frame"].values() if v)
+    run = out / "run"
+    for name in ("trajectory.txt", "targets.csv", "setpoints.csv", "metrics.json",
+                 "config.json", "top_view.png", "frames.png", "localisation_error.png"):
+        assert (run / name).is_file(), name
+
+
+def test_demo_refuses_a_folder_with_files(capsys, tmp_path):
+    (tmp_path / "keep.txt").write_text("mine")
+    code, _, err = _run(capsys, "demo", "--out", str(tmp_path))
+    assert code == 2 and str(tmp_path) in err and "--out" in err
+    assert (tmp_path / "keep.txt").read_text() == "mine"
 
 
 def test_rgb_frames_small_resolution(capsys, tmp_path):

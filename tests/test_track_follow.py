@@ -175,6 +175,10 @@ def test_association_keeps_ids_through_a_crossing_and_missed_frames():
     assert A.longest_track(ids, classes, 0) == next(iter(mapping["B"]))
     assert A.longest_track(ids, classes, 1) == next(iter(mapping["C"]))
     assert A.longest_track(ids, classes, 7) is None
+    # counting only usable boxes (say B's are cut by the border after frame 4): A is longer
+    usable = [np.array([not (name == "B" and k > 4) for name in names])
+              for k, names in enumerate(truth)]
+    assert A.longest_track(ids, classes, 0, usable) == next(iter(mapping["A"]))
 
 
 def test_box_iou_against_hand_values():

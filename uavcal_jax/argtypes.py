@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["fraction", "parse_imgsz", "parse_offset", "parse_resolution", "positive",
-           "positive_int", "print_json"]
+           "positive_int", "print_json", "to_builtin"]
 
 
 def parse_resolution(text: str) -> tuple[int, int]:
@@ -85,7 +85,8 @@ def fraction(text: str) -> float:
     return value
 
 
-def _to_builtin(value: Any) -> Any:
+def to_builtin(value: Any) -> Any:
+    """``json.dumps``'s ``default``: NumPy scalars and arrays, and paths, as built-ins."""
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -97,4 +98,4 @@ def _to_builtin(value: Any) -> Any:
 
 def print_json(obj: Any) -> None:
     """Print ``obj`` as one JSON object on one line (numpy values converted)."""
-    print(json.dumps(obj, default=_to_builtin))
+    print(json.dumps(obj, default=to_builtin))

@@ -110,6 +110,7 @@ def run(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataRepairWarning)
         from uavcal_jax.pipeline.run import run_pipeline
+        from uavcal_jax.pipeline.run_outputs import format_run_summary
         from uavcal_jax.plots import plot_run
 
         detector = _detector(args, config)
@@ -129,32 +130,6 @@ def run(args) -> int:
     if args.json:
         print_json(json.loads(result.paths["metrics"].read_text()))
         return 0
-    _print_summary(result, figures)
+    print(format_run_summary(result.metrics, result.out_dir, figures))
     return 0
 
-
-def _print_summary(result, figures) -> None:
-    m = result.metrics
-    print(f"{m['vio']['poses']} poses from {m['vio']['frames']} frames -> {result.out_dir}")
-    o = m["offset"]
-    print(f"IMU offset ({o['method']}): " + " ".join(f"{v:.4f}" for v in o["estimate"])
-          + ("" if o["true"] is None else "  true: " + " ".join(f"{v:.4f}" for v in o["true"])))
-    if m["ate_m"] is not None:
-        print(f"ATE rmse {m['ate_m']['rmse']:.4f} m ({m['ate_m']['alignment']} alignment)")
-    d = m["detections"]
-    print(f"detections: {d['boxes']} in {d['frames_with_detections']} of {d['frames_run']} "
-          f"frames; following {d['followed_class']} track {d['followed_track']}; "
-          f"{m['localisation']['located']} boxes located ({m['localisation']['mode']})")
-    err = m["target_error_m"]
-    for kind in ("raw", "filtered"):
-        if err is not None and err[kind] is not None:
-            e = err[kind]
-            print(f"target error {kind}: median {e['median']:.3f} m, rmse {e['rmse']:.3f} m, "
-                  f"max {e['max']:.3f} m ({e['count']} frames)")
-    for key, reason in m["omitted"].items():
-        print(f"{key}: omitted ({reason})")
-    ms = m["ms_per_frame"]
-    parts = [f"{k} {ms[k]['mean']:.1f}" for k in ("vio_wall", "detect", "locate", "filter",
-                                                   "follow", "pipeline") if ms.get(k)]
-    print("ms per frame (steady state): " + ", ".join(parts))
-    print("figures: " + ", ".join(str(p) for p in figures.values()))

@@ -18,12 +18,13 @@ costs about a quarter of the paper's 640x480 input. Training is YOLOv5's SGD rec
 (:meth:`TrainConfig.yolov5`), batch 8, validation on a tenth of the frames every few epochs.
 
 What they are worth, measured (``python experiments/detector_default_weights.py``, the
-defaults: 8 flights -- 4 procedural, EuRoC MH_01/V1_02/MH_03, UZH-FPV indoor_forward_3 -- 20 s
-at 2 Hz, 328 frames and 954 boxes; stopped by the 20-minute budget after 6 of 8 epochs, 216
-steps, on 2 cores shared with a load of about 13): on the held-out MH_04_difficult flight (41
-frames, 119 boxes) mAP@0.5 0.208 and mAP@0.5:0.95 0.056 -- car AP@0.5 0.41, person 0.005. So
-they find cars, at a coarse box, and hardly ever people: undertrained (the loss was still
-falling). ``--budget 90 --epochs 40`` on more flights is the way to better ones.
+defaults: 16 flights -- 8 procedural, the EuRoC trajectories MH_01/V1_02/MH_03/V2_01/V1_03/
+MH_05, the UZH-FPV indoor_forward_3 and indoor_45_2 -- 20 s at 2 Hz, 656 frames and 1884
+boxes; all 20 epochs, the best the last, 36 min of training on 2 cores shared with other
+work): on the held-out MH_04_difficult flight (41 frames, 119 boxes, a seed no training
+flight uses) mAP@0.5 0.80 and mAP@0.5:0.95 0.50 -- car AP@0.5 1.00 (0.64 at 0.5:0.95),
+person 0.60 (0.37); on the validation frames 0.85 and 0.53. The first weights shipped (8
+flights, 6 epochs) reached 0.21 and 0.06 there.
 
 They are a demonstration on the simulator's targets, not a detector for real footage: train
 one on labelled frames of your own targets (``uavcal detect train``).
@@ -45,7 +46,7 @@ DEFAULT_DETECTOR_RUN = Path(__file__).resolve().parent / "weights" / "default"
 #: ``experiments/detector_default_weights.py`` trains it (``--epochs``, ``--set`` change it).
 SHIPPED = DetectConfig(
     detector=DetectorConfig(model="yznet-yolo-tiny", img_size=(256, 384)),
-    train=TrainConfig.yolov5(epochs=8, batch_size=8, val_fraction=0.1, eval_every=3),
+    train=TrainConfig.yolov5(epochs=20, batch_size=8, val_fraction=0.1, eval_every=3),
 )
 
 
@@ -55,5 +56,6 @@ def default_detector_run() -> Path:
     if not (DEFAULT_DETECTOR_RUN / "config.json").is_file() or not (
             DEFAULT_DETECTOR_RUN / "checkpoints" / "best").is_dir():
         raise DataError("the shipped detector weights are missing from this installation "
-                        "(reinstall the package, or give --detector RUN)", DEFAULT_DETECTOR_RUN)
+                        "(reinstall the package, or give --detector RUN: a `uavcal detect "
+                        "train` run folder)", DEFAULT_DETECTOR_RUN)
     return DEFAULT_DETECTOR_RUN

@@ -11,6 +11,12 @@ Modules, one job each:
   (:data:`METHODS`, :func:`register_method`, :func:`get_method`, :func:`configure_method`).
 * :mod:`~uavcal_jax.pipeline.vio_bias`: ``vio-bias``, the median of the stereo VIO's bias
   states over the end of the flight.
+* :mod:`~uavcal_jax.pipeline.visual_ls`: ``visual-ls``, VINS-Mono's gyro-bias least squares
+  against the front end's visual rotations.
+* :mod:`~uavcal_jax.pipeline.motion_inputs`: the calibrator's visual rotations (the
+  ``rotation_source`` ``calib`` takes).
+* :mod:`~uavcal_jax.pipeline.offset_scores`: estimators scored on recordings whose truth is
+  known (issue 20's tables).
 * :mod:`~uavcal_jax.pipeline.transformer_offset`: ``transformer``, the trained calibrator of
   Avola et al. (``uavcal_jax.calib``).
 * :mod:`~uavcal_jax.pipeline.predict_offset`: a recording's offset by any method, scored
@@ -21,6 +27,10 @@ Modules, one job each:
 * :mod:`~uavcal_jax.pipeline.targets`: detections -> the followed track, located, filtered.
 * :mod:`~uavcal_jax.pipeline.run_metrics`: the run against the truth, follow figures, timings.
 * :mod:`~uavcal_jax.pipeline.run_outputs`: the output folder's files and ``metrics.json``.
+* :mod:`~uavcal_jax.pipeline.drift`: the long-flight drift runs (dead reckoning and the VIO,
+  per offset correction) of ``experiments/drift_long_flight.py``.
+* :mod:`~uavcal_jax.pipeline.drift_metrics`: their final-position error and error against
+  distance travelled.
 
 No estimator sees the ground truth: :func:`~uavcal_jax.pipeline.predict_offset.predict_offset`
 hands it the recording without one, and scores the estimate only once it is made.

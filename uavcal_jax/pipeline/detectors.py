@@ -8,7 +8,7 @@ ids into ``class_names``).
 
 - :class:`NetworkDetector`: a trained detector (a ``uavcal detect train`` run folder, its best
   EMA weights); :func:`load_network_detector` reads one, by default the weights shipped in the
-  package (:data:`DEFAULT_DETECTOR_WEIGHTS`).
+  package (:func:`uavcal_jax.detect.default_weights.default_detector_run`).
 - :class:`LabelDetector`: the recording's own target labels (the simulator's boxes of each
   target's visible pixels) as detections: a perfect detector, for tests and for measuring
   the rest of the pipeline apart from the network.
@@ -26,16 +26,11 @@ from typing import Protocol
 import numpy as np
 
 from uavcal_jax.data.targets import TargetLabels
+from uavcal_jax.detect.default_weights import default_detector_run
 from uavcal_jax.detect.predict import ImageDetections
 from uavcal_jax.errors import DataError
 
-__all__ = ["DEFAULT_DETECTOR_WEIGHTS", "Detector", "LabelDetector", "NetworkDetector",
-           "load_network_detector"]
-
-#: The detector weights shipped in the package: a ``uavcal detect train`` run folder cut down
-#: to ``config.json`` and the best checkpoint.
-DEFAULT_DETECTOR_WEIGHTS = (Path(__file__).resolve().parents[1] / "detect" / "weights"
-                            / "default")
+__all__ = ["Detector", "LabelDetector", "NetworkDetector", "load_network_detector"]
 
 
 class Detector(Protocol):
@@ -74,19 +69,17 @@ class NetworkDetector:
 def load_network_detector(run: str | Path | None = None, score_threshold: float = 0.25
                           ) -> NetworkDetector:
     """The detector of a ``uavcal detect train`` run folder ``run`` (its best weights), or
-    the shipped one (:data:`DEFAULT_DETECTOR_WEIGHTS`) when ``run`` is ``None``; detections
+    the shipped one (:func:`uavcal_jax.detect.default_weights.default_detector_run`) when
+    ``run`` is ``None``; detections
     below ``score_threshold`` are dropped (the serving NMS settings otherwise).
 
     Raises:
         DataError: the folder is missing or is not a training run with a best checkpoint (the
             message names it and, for the shipped weights, says to give ``--detector RUN``).
     """
-    shipped = run is None
-    path = Path(DEFAULT_DETECTOR_WEIGHTS if shipped else run)
+    # the shipped folder's check raises a DataError naming it when it is missing
+    path = default_detector_run() if run is None else Path(run)
     if not (path / "config.json").is_file() or not (path / "checkpoints" / "best").is_dir():
-        if shipped:
-            raise DataError("the shipped detector weights are missing from this installation "
-                            "(give --detector RUN: a `uavcal detect train` run folder)", path)
         what = "no such run folder" if not path.exists() else (
             "not a detector training run (needs config.json and checkpoints/best)")
         raise DataError(what, path)

@@ -80,14 +80,14 @@ class RunResult:
     notes: list[str]
 
 
-def _offset(recording: Path, sequence: Sequence, config: RunConfig, offsets, progress: bool
-            ) -> dict:
+def _offset(recording: Path, sequence: Sequence, config: RunConfig, offsets, offsets_from: str,
+            progress: bool) -> dict:
     """Step 1: ``{"estimate", "true", "method", "label", "seconds"}``."""
     t0 = time.perf_counter()
     recorded = recorded_imu_offset(recording) if recording.is_dir() else None
     label, span = "total", (None, None)
     if offsets is not None:
-        estimate, method = np.asarray(offsets, np.float64).reshape(6), "given"
+        estimate, method = np.asarray(offsets, np.float64).reshape(6), offsets_from
     elif config.offset_method == NO_OFFSET:
         estimate, method = np.zeros(6), NO_OFFSET
     else:
@@ -183,8 +183,8 @@ def _follow(times_s: np.ndarray, target: TargetResult, poses, T_BC: np.ndarray,
 
 
 def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig | None = None,
-                 *, offsets=None, detector: Detector | None = None, progress: bool = True,
-                 inputs: dict | None = None) -> RunResult:
+                 *, offsets=None, offsets_from: str = "given", detector: Detector | None = None,
+                 progress: bool = True, inputs: dict | None = None) -> RunResult:
     """Run the whole pipeline over ``recording`` and write its files into ``out_dir``.
 
     Args:
@@ -193,6 +193,8 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
         out_dir: the output folder (created).
         config: :class:`~uavcal_jax.pipeline.run_config.RunConfig` (``None``: defaults).
         offsets: (6,) an IMU offset to remove instead of estimating one, or ``None``.
+        offsets_from: what ``offsets`` is, for ``metrics.json``'s ``offset.method`` (e.g.
+            the name of the estimator that made it).
         detector: a :class:`~uavcal_jax.pipeline.detectors.Detector`; ``None``: the weights
             shipped in the package.
         progress: a progress bar per stage on stderr.
@@ -216,7 +218,7 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
     if offsets is None and config.offset_method != NO_OFFSET:
         get_method(config.offset_method)  # an unknown name fails before any work
     localizer = build_localizer(sequence, config)
-    offset = _offset(recording, sequence, config, offsets, progress)
+    offset = _offset(recording, sequence, config, offsets, offsets_from, progress)
     t0 = time.perf_counter()
     vio, detections, detect_ms, detected_frames = _vio_and_detect(
         sequence, config, offset["estimate"], detector, progress)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uavcal_jax.argtypes import to_builtin
 from uavcal_jax.config import write_config
 from uavcal_jax.data.run_tables import write_setpoints, write_targets
 from uavcal_jax.data.tum import write_tum
@@ -24,7 +25,8 @@ from uavcal_jax.pipeline.run_metrics import Evaluation, statistics
 from uavcal_jax.pipeline.targets import TargetResult
 from uavcal_jax.track import PREDICTING, TRACKING
 
-__all__ = ["FIGURE_FILES", "OUTPUT_FILES", "build_metrics", "target_rows", "write_outputs"]
+__all__ = ["FIGURE_FILES", "OUTPUT_FILES", "build_metrics", "format_run_summary", "target_rows",
+           "write_outputs"]
 
 #: The files of the output folder, by role.
 OUTPUT_FILES = {"trajectory": "trajectory.txt", "targets": "targets.csv",
@@ -123,15 +125,50 @@ def write_outputs(out_dir: Path, *, trajectory, times_ns, target: TargetResult,
     write_setpoints(paths["setpoints"], times_ns, setpoints.position, setpoints.yaw)
     write_config(paths["config"], config, inputs=inputs)
     metrics["seconds"]["total"] = time.perf_counter() - t_start
-    paths["metrics"].write_text(json.dumps(metrics, indent=1, default=_json) + "\n")
+    paths["metrics"].write_text(json.dumps(metrics, indent=1, default=to_builtin) + "\n")
     return paths
 
 
-def _json(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+def format_run_summary(metrics: dict, out_dir, figures: dict) -> str:
+    """The main figures of ``metrics.json`` (:func:`build_metrics`), a few lines for a person
+    (``uavcal run`` and ``uavcal demo`` print them; ``--json`` prints it all)."""
+    m = metrics
+    lines = [f"{m['vio']['poses']} poses from {m['vio']['frames']} frames, "
+             f"{m['vio']['resets']} resets -> {out_dir}"]
+    o = m["offset"]
+    lines.append(f"IMU offset removed ({o['method']}): "
+                 + " ".join(f"{v:.4f}" for v in o["estimate"]))
+    if o["true"] is not None:
+        lines.append("  true: " + " ".join(f"{v:.4f}" for v in o["true"]) + "  error: "
+                     + " ".join(f"{e - t:.4f}" for e, t in zip(o["estimate"], o["true"],
+                                                               strict=True))
+                     + "  (gyro rad/s, accel m/s^2)")
+    if m["ate_m"] is not None:
+        lines.append(f"ATE rmse {m['ate_m']['rmse']:.4f} m ({m['ate_m']['alignment']} "
+                     "alignment)")
+    d = m["detections"]
+    lines.append(f"detections: {d['boxes']} in {d['frames_with_detections']} of "
+                 f"{d['frames_run']} frames; following {d['followed_class']} track "
+                 f"{d['followed_track']}; {m['localisation']['located']} boxes located "
+                 f"({m['localisation']['mode']})")
+    err = m["target_error_m"]
+    for kind in ("raw", "filtered"):
+        if err is not None and err[kind] is not None:
+            e = err[kind]
+            lines.append(f"target error {kind}: median {e['median']:.3f} m, rmse "
+                         f"{e['rmse']:.3f} m, max {e['max']:.3f} m ({e['count']} frames)")
+    f = m["follow"]
+    if f.get("distance_error_vs_true_m"):
+        lines.append(f"follow (set-points against the true target): distance error median "
+                     f"{f['distance_error_vs_true_m']['median']:.2f} m, height error median "
+                     f"{f['height_error_vs_true_m']['median']:.2f} m; set-point speed max "
+                     f"{f['max_setpoint_speed_mps']:.2f} m/s, yaw rate max "
+                     f"{f['max_yaw_rate_radps']:.2f} rad/s")
+    for key, reason in m["omitted"].items():
+        lines.append(f"{key}: omitted ({reason})")
+    ms = m["ms_per_frame"]
+    parts = [f"{k} {ms[k]['mean']:.1f}" for k in ("vio_wall", "detect", "locate", "filter",
+                                                   "follow", "pipeline") if ms.get(k)]
+    lines.append("ms per frame (steady state): " + ", ".join(parts))
+    lines.append("figures: " + ", ".join(str(p) for p in figures.values()))
+    return "\n".join(lines)

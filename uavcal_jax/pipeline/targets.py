@@ -5,7 +5,8 @@ and the detector have run over a recording:
 
 1. the detections of every detected frame are associated into tracks
    (:func:`uavcal_jax.track.associate.assign_track_ids`) and the longest track of the class
-   to follow is the target (:func:`~uavcal_jax.track.associate.longest_track`);
+   to follow is the target (:func:`~uavcal_jax.track.associate.longest_track`), its length
+   counted in boxes inside the image (a box cut by the border cannot be located);
 2. each of its boxes is located (:class:`Localizer`): from the depth image (``depth0``) when
    the recording has one, else from the stereo pair's disparity (``cam1``), else not at all,
    with the reason; a box cut by the image border, or a frame without a VIO pose, is not
@@ -222,7 +223,11 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     track_ids: list[np.ndarray | None] = [None] * T
     for k, ids in zip(ran, ids_ran, strict=True):
         track_ids[k] = ids
-    chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id)
+    inside = [np.array([not localizer.cut_by_border(b) for b in detections[k].boxes], bool)
+              for k in ran]
+    chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id, inside)
+    if chosen is None:  # every box of the class is cut by the border: follow it anyway
+        chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id)
     boxes, scores = np.full((T, 4), np.nan), np.full(T, np.nan)
     raw_frames, points, covs, locate_ms = [], [], [], []
     not_located: collections.Counter = collections.Counter()

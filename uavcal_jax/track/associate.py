@@ -106,12 +106,19 @@ def assign_track_ids(boxes: Sequence[np.ndarray], class_ids: Sequence[np.ndarray
 
 
 def longest_track(track_ids: Sequence[np.ndarray], class_ids: Sequence[np.ndarray],
-                  class_id: int) -> int | None:
+                  class_id: int, usable: Sequence[np.ndarray] | None = None) -> int | None:
     """The id of the longest track (most frames) of class ``class_id``; ties go to the
-    earliest track; ``None`` when there is none."""
+    earliest track; ``None`` when there is none.
+
+    ``usable``: per frame, a bool mask over its detections; only usable detections count
+    (a follower wants the target it can locate most often, not a box that stays cut by the
+    image border all flight)."""
     ids = np.concatenate([np.asarray(t, np.int64).reshape(-1) for t in track_ids] or [[]])
     classes = np.concatenate([np.asarray(c, np.int64).reshape(-1) for c in class_ids] or [[]])
-    ids = ids[classes == class_id].astype(np.int64)
+    keep = classes == class_id
+    if usable is not None:
+        keep &= np.concatenate([np.asarray(u, bool).reshape(-1) for u in usable] or [[]])
+    ids = ids[keep].astype(np.int64)
     if ids.size == 0:
         return None
     counts = np.bincount(ids)
