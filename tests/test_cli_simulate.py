@@ -240,15 +240,13 @@ def test_demo_json(capsys, tmp_path):
     for name in ("vio-bias", "visual-ls"):
         assert np.all(np.abs(methods[name]["error"][:3]) < 5e-3), (name, methods[name])
     # the run removes the default method's estimate: closer to the truth than no correction
-    # on every gyro channel and on the accelerometer's vertical one (gravity lies along the
-    # body's x here); the horizontal accelerometer channels trade with tilt and converge only
-    # as the drone turns (12 s is short: issue 22 keeps them open)
+    # on every channel (measured: the gyro's errors 1-2 % of the truth, the accelerometer's
+    # 4-15 %)
     offset = result["offset"]
     assert offset["method"] == "vio-bias"
     np.testing.assert_allclose(offset["estimate"], methods["vio-bias"]["offset"])
     error = np.subtract(offset["estimate"], offset["true"])
-    assert np.all(np.abs(error[:3]) < 0.2 * np.abs(offset["true"][:3])), (error, offset["true"])
-    assert abs(error[3]) < 0.5 * abs(offset["true"][3]), (error, offset["true"])
+    assert np.all(np.abs(error) < 0.4 * np.abs(offset["true"])), (error, offset["true"])
     # the run: a pose on every frame, the VIO on track, the car found and located
     assert result["vio"]["poses"] == result["vio"]["frames"] == 241
     assert result["ate_m"]["rmse"] < 0.05
