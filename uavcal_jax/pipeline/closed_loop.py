@@ -69,6 +69,8 @@ from uavcal_jax.track import LOST, TRACKING, UNSEEN, Setpoint, follow_step, loca
 from uavcal_jax.track import filter as target_filter
 from uavcal_jax.track.associate import box_iou
 from uavcal_jax.track.follow import wrap_angle
+from uavcal_jax.track.heading import heading_from_velocity, heading_step, uniform_belief
+from uavcal_jax.track.locate import box_centre_candidates, box_corners_normalized
 from uavcal_jax.vio.estimator import StereoVio
 from uavcal_jax.vio.run import one_blas_thread
 from uavcal_jax.vio.trajectory_metrics import ate
@@ -311,6 +313,9 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
     key = jax.random.PRNGKey(seeds["camera"])
     eye = jnp.broadcast_to(jnp.eye(4, dtype=jnp.float32), (1, 1, 4, 4))
     extent = run.detect.target_extent()
+    half_size = run.detect.target_half_size()
+    belief, t_belief = uniform_belief(), None  # over the box model's candidate headings
+    velocity_heading = np.nan  # the filter's, before this frame
 
     # hover before the first frame
     flight = fly(start, start.p, start.yaw, lead, config.drone)
@@ -390,6 +395,15 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                                  extent, run.locate)
                 if bool(loc.located):
                     z, R, valid = np.asarray(loc.point), np.asarray(loc.covariance), True
+                    if half_size is not None:  # the front surface -> the box's centre
+                        box_n = box_corners_normalized(np.asarray(box, np.float64), camera)
+                        centres, mismatch = box_centre_candidates(
+                            z, T_pose @ T_BS[0], np.asarray(half_size), box_n, run.locate)
+                        belief = heading_step(belief, 0.0 if t_belief is None else
+                                              t_rel - t_belief, np.asarray(mismatch),
+                                              velocity_heading, run.heading)
+                        t_belief = t_rel
+                        z = np.asarray(centres[int(np.argmax(belief))], np.float64)
                     rec["raw_pose"][j] = z
             ms["locate"][j] = 1e3 * (time.perf_counter() - c0)
 
@@ -400,6 +414,8 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                                        jnp.asarray(valid), run.filter)
             status[j] = int(fout.status)
             target_pos = np.asarray(fout.position, np.float64)
+            velocity_heading = float(heading_from_velocity(
+                np.asarray(fout.velocity)[None], run.heading.min_speed)[0])
             rec["filtered_pose"][j] = target_pos
             ms["filter"][j] = 1e3 * (time.perf_counter() - c0)
 

@@ -18,25 +18,24 @@ from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD
 from uavcal_jax.track.associate import AssociateConfig
 from uavcal_jax.track.filter import FilterConfig
 from uavcal_jax.track.follow import FollowConfig
+from uavcal_jax.track.heading import HeadingConfig
 from uavcal_jax.track.locate import LocateConfig
 from uavcal_jax.track.stereo import StereoConfig
 from uavcal_jax.vio.config import VioConfig
 
-__all__ = ["CLASS_EXTENT_M", "NO_OFFSET", "RUN_FILTER", "RUN_LOCATE", "DetectStageConfig",
+__all__ = ["CLASS_HALF_SIZE_M", "NO_OFFSET", "RUN_FILTER", "RUN_LOCATE", "DetectStageConfig",
            "RunConfig"]
 
 #: ``RunConfig.offset_method`` that removes no offset from the IMU.
 NO_OFFSET = "none"
 
-#: Depth extent along the camera ray, metres, of a target class (by name), used when
-#: ``DetectStageConfig.extent`` is ``None``: depth sees the front surface and the centre lies
-#: half this further on (:mod:`uavcal_jax.track.locate`). The simulator's classes: a car is
-#: 3.6-4.7 x 1.6-1.9 x 1.3-1.6 m, seen from above and aside; a person 0.4-0.6 x 0.28-0.4 m.
-#: Other classes: 0. The car's value is measured with :data:`RUN_LOCATE` (below), the label
-#: boxes and the true poses on a simulated V1_02 flight (20 s, the car 6-10 m away): raw error
-#: median 0.37 m, RMSE 0.66 m; 2.0 m: 0.45 / 0.77; 3.1 m: 0.55 / 0.64. The error along the ray
-#: changes with the view of the car (0.51 m std), whatever the constant.
-CLASS_EXTENT_M = {"car": 2.5, "person": 0.35}
+#: Half sizes, metres (along the heading, across, up), of the upright box that models a target
+#: class (by name) when ``DetectStageConfig.extent`` is ``None``: depth sees the box's front
+#: surface and :func:`~uavcal_jax.track.locate.box_centre` moves the point to its centre
+#: for the view and the heading. A mid-size car (4.2 x 1.75 x 1.45 m) and a standing adult
+#: (0.5 x 0.34 x 1.72 m): the middle of the simulator's ranges (3.6-4.7 x 1.6-1.9 x 1.3-1.6,
+#: 0.4-0.6 x 0.28-0.4 x 1.55-1.9). Other classes: a point target (no offset).
+CLASS_HALF_SIZE_M = {"car": (2.1, 0.875, 0.725), "person": (0.25, 0.17, 0.86)}
 #: The run's box localisation: the depth quantile at the median of the box's centre (0.5)
 #: rather than :class:`~uavcal_jax.track.locate.LocateConfig`'s nearest fifth (0.2): a car
 #: filling a quarter of the image shows roof and side at many depths, and the nearest fifth
@@ -62,8 +61,9 @@ class DetectStageConfig:
             applies it as its confidence threshold).
         follow_class: the class name to follow (among the detector's classes); its longest
             track is the target.
-        extent: the target's depth extent along the ray, metres; ``None``: by class,
-            :data:`CLASS_EXTENT_M`.
+        extent: a fixed depth extent of the target along the ray, metres (half of it is added
+            to the front-surface depth); ``None``: the class's box model,
+            :data:`CLASS_HALF_SIZE_M`, turned by the target's heading.
         border_px: a box within this many pixels of the image border is cut by it (the
             target is partly outside the image); its centre is not the target's, so it is
             not located. Negative: locate every box.
@@ -85,10 +85,16 @@ class DetectStageConfig:
             raise ValueError(f"detect.extent must be >= 0, got {self.extent}")
 
     def target_extent(self) -> float:
-        """The extent to use for :attr:`follow_class`, metres."""
+        """The fixed depth extent of :attr:`follow_class` along the ray, metres (0 when its
+        box model is used: the offset is added afterwards)."""
+        return 0.0 if self.extent is None else float(self.extent)
+
+    def target_half_size(self) -> tuple[float, float, float] | None:
+        """The box model's half sizes of :attr:`follow_class` (metres), or ``None``: a fixed
+        :attr:`extent` is set, or the class has no box model."""
         if self.extent is not None:
-            return float(self.extent)
-        return float(CLASS_EXTENT_M.get(self.follow_class, 0.0))
+            return None
+        return CLASS_HALF_SIZE_M.get(self.follow_class)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,6 +113,8 @@ class RunConfig:
         locate: the box localisation from depth (or stereo disparity) (:data:`RUN_LOCATE`).
         stereo: the stereo matcher, for recordings with a right camera and no depth.
         filter: the constant-velocity Kalman filter on the target (:data:`RUN_FILTER`).
+        heading: the target's heading over time, which turns its box model
+            (:class:`~uavcal_jax.track.heading.HeadingConfig`).
         follow: the follow set-points.
         warmup_frames: frames at the start of each stage left out of the steady-state
             timings (1 s at EuRoC's 20 Hz: the VIO compiles its solve and its marginalisation
@@ -120,6 +128,7 @@ class RunConfig:
     locate: LocateConfig = RUN_LOCATE
     stereo: StereoConfig = StereoConfig()
     filter: FilterConfig = RUN_FILTER
+    heading: HeadingConfig = HeadingConfig()
     follow: FollowConfig = FollowConfig()
     warmup_frames: int = 20
 

@@ -12,7 +12,13 @@ and the detector have run over a recording:
    with the reason; a box cut by the image border, or a frame without a VIO pose, is not
    located either;
 3. the located points are filtered over every left frame (the filter predicts between
-   detections, :func:`uavcal_jax.track.filter.run_filter`).
+   detections, :func:`uavcal_jax.track.filter.run_filter`). A class with a box model
+   (:data:`~uavcal_jax.pipeline.run_config.CLASS_HALF_SIZE_M`) is located at its front
+   surface and moved to the centre of the box seen so, at each candidate heading
+   (:func:`centre_candidates`); the heading is tracked over time
+   (:func:`uavcal_jax.track.heading.track_heading`), first from the boxes' shapes alone, then
+   with the first pass's filtered velocity at the frame before as well (causal, as a live
+   follower would have it), and the centres at that heading are filtered again.
 
 Frames: ``T_WB`` the VIO's body pose (world = the VIO's gravity-aligned frame), ``T_BC`` the
 left camera's extrinsic from the recording's calibration. Times in the filter are seconds
@@ -35,10 +41,12 @@ from uavcal_jax.geometry.camera import from_calibration
 from uavcal_jax.pipeline.run_config import RunConfig
 from uavcal_jax.track import REASONS, FilterOutput, assign_track_ids, locate_box, longest_track
 from uavcal_jax.track.filter import run_filter
+from uavcal_jax.track.heading import heading_from_velocity, track_heading
+from uavcal_jax.track.locate import box_centre_candidates, box_corners_normalized
 from uavcal_jax.track.stereo import locate_box_stereo, rectify_stereo
 
 __all__ = ["LOCALISATION_MODES", "Localizer", "LocatedPoint", "TargetResult", "build_localizer",
-           "filter_target", "track_target"]
+           "centre_candidates", "filter_target", "track_target"]
 
 #: How a recording's boxes are located: from its depth images, its stereo pair, or not at all.
 LOCALISATION_MODES = ("depth", "stereo", "off")
@@ -49,11 +57,15 @@ NO_POSE, BORDER = "no VIO pose at the frame", "box cut by the image border"
 @dataclasses.dataclass(frozen=True)
 class LocatedPoint:
     """One box's localisation: ``point`` (3,) world metres and ``covariance`` (3, 3) m^2
-    (NaN unless ``reason == "located"``)."""
+    (NaN unless ``reason == "located"``); the view it was located in: ``T_WC`` (4, 4) the left
+    camera's pose and ``box_normalized`` (4,) the box's corners in normalised (undistorted)
+    image coordinates."""
 
     point: np.ndarray
     covariance: np.ndarray
     reason: str
+    T_WC: np.ndarray = dataclasses.field(default_factory=lambda: np.full((4, 4), np.nan))
+    box_normalized: np.ndarray = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
 
     @property
     def located(self) -> bool:
@@ -118,8 +130,11 @@ class Localizer:
             out = locate_box_stereo(box, self._left.load(frame), self._right.load(j), self._rect,
                                     self._T_BC, T_WB, self._extent, cfg, self._config.stereo)
         reason = REASONS[int(out.reason)]
+        box_normalized = box_corners_normalized(np.asarray(box, np.float64), self._camera)
         return LocatedPoint(np.asarray(out.point, np.float64),
-                            np.asarray(out.covariance, np.float64), reason)
+                            np.asarray(out.covariance, np.float64), reason,
+                            np.asarray(T_WB, np.float64) @ self._T_BC,
+                            np.asarray(box_normalized, np.float64))
 
 
 def build_localizer(sequence: Sequence, config: RunConfig) -> Localizer:
@@ -197,6 +212,18 @@ def filter_target(times_s: np.ndarray, raw_frames: np.ndarray, raw_points: np.nd
     return FilterOutput(*(np.asarray(a) for a in out)), tuple(ms)
 
 
+def centre_candidates(front: np.ndarray, T_WC: np.ndarray, box_normalized: np.ndarray,
+                      half_size, config: RunConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Front-surface points (R, 3), seen from the camera poses ``T_WC`` (R, 4, 4) in boxes
+    ``box_normalized`` (R, 4): the centres (R, H, 3) of boxes with ``half_size`` (3,) metres at
+    each candidate heading, and each one's shape mismatch (R, H)
+    (:func:`uavcal_jax.track.locate.box_centre_candidates`)."""
+    fit = jax.vmap(box_centre_candidates, in_axes=(0, 0, None, 0, None))
+    centres, mismatch = fit(front, T_WC, np.asarray(half_size, np.float64), box_normalized,
+                            config.locate)
+    return np.asarray(centres, np.float64), np.asarray(mismatch, np.float64)
+
+
 def track_target(sequence: Sequence, detections: list[ImageDetections | None],
                  class_names, poses: list[np.ndarray | None], config: RunConfig,
                  localizer: Localizer) -> TargetResult:
@@ -229,7 +256,7 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     if chosen is None:  # every box of the class is cut by the border: follow it anyway
         chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id)
     boxes, scores = np.full((T, 4), np.nan), np.full(T, np.nan)
-    raw_frames, points, covs, locate_ms = [], [], [], []
+    raw_frames, points, covs, views, boxes_n, locate_ms = [], [], [], [], [], []
     not_located: collections.Counter = collections.Counter()
     if chosen is not None:
         for k in ran:
@@ -244,12 +271,26 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
                 raw_frames.append(k)
                 points.append(located.point)
                 covs.append(located.covariance)
+                views.append(located.T_WC)
+                boxes_n.append(located.box_normalized)
             else:
                 not_located[located.reason] += 1
     times_s = (cam0.t_ns - cam0.t_ns[0]).astype(np.float64) * 1e-9
     raw_frames = np.asarray(raw_frames, np.int64)
     raw_points = np.asarray(points, np.float64).reshape(-1, 3)
     raw_cov = np.asarray(covs, np.float64).reshape(-1, 3, 3)
+    half_size = config.detect.target_half_size()
+    if half_size is not None:
+        centres, mismatch = centre_candidates(
+            raw_points, np.asarray(views, np.float64).reshape(-1, 4, 4),
+            np.asarray(boxes_n, np.float64).reshape(-1, 4), half_size, config)
+        rows, t_raw = np.arange(len(raw_frames)), times_s[raw_frames]
+        unknown = np.full(len(raw_frames), np.nan)
+        raw_points = centres[rows, track_heading(t_raw, mismatch, unknown, config.heading)]
+        first, _ = filter_target(times_s, raw_frames, raw_points, raw_cov, config)
+        heading = heading_from_velocity(first.velocity, config.heading.min_speed)
+        before = np.concatenate([[np.nan], heading[:-1]])[raw_frames]  # causal
+        raw_points = centres[rows, track_heading(t_raw, mismatch, before, config.heading)]
     filtered, filter_ms = filter_target(times_s, raw_frames, raw_points, raw_cov, config)
     return TargetResult(
         class_name=config.detect.follow_class, class_id=class_id, track_id=chosen,

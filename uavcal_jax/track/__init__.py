@@ -5,7 +5,10 @@ project (NumPy, JAX, SciPy, and OpenCV for the stereo path). Modules, one job ea
 
 * :mod:`~uavcal_jax.track.locate`: a box + a depth image + the camera and the pose -> the
   target's world position with a 3x3 covariance, or "not located" with a reason
-  (:class:`LocateConfig`). Jitted JAX.
+  (:class:`LocateConfig`); for a box-shaped target, its centre from the front surface at
+  each candidate heading (``box_centre_candidates``). Jitted JAX.
+* :mod:`~uavcal_jax.track.heading`: which candidate heading to believe over time, from the
+  boxes' shapes and the target's velocity (a discrete Bayes filter, :class:`HeadingConfig`).
 * :mod:`~uavcal_jax.track.stereo`: the same from a stereo pair (``cv2.stereoRectify``, SGBM on
   the box's strip of rows), for recordings without a depth image.
 * :mod:`~uavcal_jax.track.filter`: a constant-velocity Kalman filter on the world position
@@ -29,6 +32,7 @@ from uavcal_jax.track.filter import (
     run_filter,
 )
 from uavcal_jax.track.follow import FollowConfig, Setpoint, follow_setpoints, follow_step
+from uavcal_jax.track.heading import HeadingConfig
 from uavcal_jax.track.locate import REASONS, LocateConfig, Located, locate_box
 
 __all__ = [
@@ -42,6 +46,7 @@ __all__ = [
     "FilterConfig",
     "FilterOutput",
     "FollowConfig",
+    "HeadingConfig",
     "LocateConfig",
     "Located",
     "Setpoint",
