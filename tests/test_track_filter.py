@@ -138,3 +138,23 @@ def test_filter_is_one_compiled_scan():
     assert "scan" in str(jaxpr)
     with pytest.raises(ValueError):
         F.FilterConfig(gate_probability=1.0)
+
+
+def test_a_run_of_gated_measurements_reinitialises_on_the_target():
+    """A target that jumps 3 m and stays there (a turn the model did not follow, or a pose
+    correction) is gated at first; after ``reinit_after_gated`` gated frames in a row the
+    filter restarts on it, while a single 10 m outlier is still gated."""
+    T = 40
+    t = np.arange(T) * 0.05
+    z = np.zeros((T, 3))
+    z[20:] = [3.0, 0.0, 0.0]
+    z[10] = [10.0, 0.0, 0.0]
+    R = np.tile(0.01 * np.eye(3), (T, 1, 1))
+    valid = np.ones(T, bool)
+    out = F.run_filter(t, z, R, valid, F.FilterConfig(reinit_after_gated=5))
+    gated = np.asarray(out.gated)
+    assert gated[10] and np.asarray(out.status)[11] == F.TRACKING
+    assert gated[20:24].all() and not gated[24:].any()
+    assert np.linalg.norm(np.asarray(out.position)[24] - z[24]) < 0.2
+    never = F.run_filter(t, z, R, valid, F.FilterConfig(reinit_after_gated=0))
+    assert np.asarray(never.gated)[20:].all()

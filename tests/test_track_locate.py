@@ -301,7 +301,19 @@ def test_heading_tracker_resolves_the_mirror_ambiguity_with_the_velocity():
     rng = np.random.default_rng(0)
     velocity = grid[true_index] + rng.normal(0.0, 0.4, 40)
     velocity[25:] = np.nan  # the target stops
-    chosen = track_heading(np.arange(40) * 0.05, mismatch, velocity)
+    chosen, _ = track_heading(np.arange(40) * 0.05, mismatch, velocity)
     assert np.all(chosen[5:] == true_index)
-    shape_only = track_heading(np.arange(40) * 0.05, mismatch, np.full(40, np.nan))
+    shape_only, _ = track_heading(np.arange(40) * 0.05, mismatch, np.full(40, np.nan))
     assert set(shape_only) <= {true_index, mirror_index}
+
+
+def test_heading_spread_is_the_belief_weighted_scatter_about_the_chosen_centre():
+    from uavcal_jax.track.heading import heading_spread
+
+    centres = np.zeros((2, 4, 3))
+    centres[0, 1] = [1.0, 0.0, 0.0]
+    centres[1, :, 1] = [0.0, 0.5, 0.0, 0.0]
+    belief = np.array([[0.5, 0.5, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]])
+    spread = heading_spread(centres, belief, np.array([0, 0]))
+    np.testing.assert_allclose(spread[0], np.diag([0.5, 0.0, 0.0]))
+    np.testing.assert_allclose(spread[1], 0.0)

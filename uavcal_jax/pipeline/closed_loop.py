@@ -69,7 +69,12 @@ from uavcal_jax.track import LOST, TRACKING, UNSEEN, Setpoint, follow_step, loca
 from uavcal_jax.track import filter as target_filter
 from uavcal_jax.track.associate import box_iou
 from uavcal_jax.track.follow import wrap_angle
-from uavcal_jax.track.heading import heading_from_velocity, heading_step, uniform_belief
+from uavcal_jax.track.heading import (
+    heading_from_velocity,
+    heading_spread,
+    heading_step,
+    uniform_belief,
+)
 from uavcal_jax.track.locate import box_centre_candidates, box_corners_normalized
 from uavcal_jax.vio.estimator import StereoVio
 from uavcal_jax.vio.run import one_blas_thread
@@ -187,7 +192,7 @@ def _filter_step(carry, t, z, R, valid, config):
 def _filter_start(dtype) -> target_filter._Carry:
     return target_filter._Carry(x=jnp.zeros(6, dtype), P=jnp.eye(6, dtype=dtype),
                                 t=jnp.zeros((), dtype), t_used=jnp.asarray(jnp.nan, dtype),
-                                active=jnp.asarray(False))
+                                active=jnp.asarray(False), gated_run=jnp.zeros((), jnp.int32))
 
 
 def _yaw_of(R_WQ: np.ndarray) -> float:
@@ -403,7 +408,9 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                                               t_rel - t_belief, np.asarray(mismatch),
                                               velocity_heading, run.heading)
                         t_belief = t_rel
-                        z = np.asarray(centres[int(np.argmax(belief))], np.float64)
+                        chosen = int(np.argmax(belief))
+                        R = R + heading_spread(np.asarray(centres), belief, chosen)
+                        z = np.asarray(centres[chosen], np.float64)
                     rec["raw_pose"][j] = z
             ms["locate"][j] = 1e3 * (time.perf_counter() - c0)
 

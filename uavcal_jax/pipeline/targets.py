@@ -41,12 +41,12 @@ from uavcal_jax.geometry.camera import from_calibration
 from uavcal_jax.pipeline.run_config import RunConfig
 from uavcal_jax.track import REASONS, FilterOutput, assign_track_ids, locate_box, longest_track
 from uavcal_jax.track.filter import run_filter
-from uavcal_jax.track.heading import heading_from_velocity, track_heading
+from uavcal_jax.track.heading import heading_from_velocity, heading_spread, track_heading
 from uavcal_jax.track.locate import box_centre_candidates, box_corners_normalized
 from uavcal_jax.track.stereo import locate_box_stereo, rectify_stereo
 
 __all__ = ["LOCALISATION_MODES", "Localizer", "LocatedPoint", "TargetResult", "build_localizer",
-           "centre_candidates", "filter_target", "track_target"]
+           "centre_candidates", "centre_on_box", "filter_target", "track_target"]
 
 #: How a recording's boxes are located: from its depth images, its stereo pair, or not at all.
 LOCALISATION_MODES = ("depth", "stereo", "off")
@@ -224,6 +224,28 @@ def centre_candidates(front: np.ndarray, T_WC: np.ndarray, box_normalized: np.nd
     return np.asarray(centres, np.float64), np.asarray(mismatch, np.float64)
 
 
+def centre_on_box(times_s: np.ndarray, raw_frames: np.ndarray, front: np.ndarray,
+                  located_cov: np.ndarray, T_WC: np.ndarray, box_normalized: np.ndarray,
+                  half_size, config: RunConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The box model's centres (R, 3) and their covariances (R, 3, 3) for the front-surface
+    points ``front`` (R, 3) located at ``raw_frames`` (R,) of the frames at ``times_s`` (T,)
+    (covariances ``located_cov`` (R, 3, 3), camera poses ``T_WC`` (R, 4, 4), boxes
+    ``box_normalized`` (R, 4)): the heading tracked from the boxes' shapes, filtered, then
+    tracked again with the filtered velocity of the frame before (the module docstring); the
+    heading's spread is added to each covariance."""
+    centres, mismatch = centre_candidates(front, T_WC, box_normalized, half_size, config)
+    rows, t_raw = np.arange(len(raw_frames)), times_s[raw_frames]
+
+    def at_heading(velocity_heading):
+        pick, belief = track_heading(t_raw, mismatch, velocity_heading, config.heading)
+        return centres[rows, pick], located_cov + heading_spread(centres, belief, pick)
+
+    points, cov = at_heading(np.full(len(raw_frames), np.nan))  # the shapes alone
+    first, _ = filter_target(times_s, raw_frames, points, cov, config)
+    heading = heading_from_velocity(first.velocity, config.heading.min_speed)
+    return at_heading(np.concatenate([[np.nan], heading[:-1]])[raw_frames])  # causal
+
+
 def track_target(sequence: Sequence, detections: list[ImageDetections | None],
                  class_names, poses: list[np.ndarray | None], config: RunConfig,
                  localizer: Localizer) -> TargetResult:
@@ -280,17 +302,10 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     raw_points = np.asarray(points, np.float64).reshape(-1, 3)
     raw_cov = np.asarray(covs, np.float64).reshape(-1, 3, 3)
     half_size = config.detect.target_half_size()
-    if half_size is not None:
-        centres, mismatch = centre_candidates(
-            raw_points, np.asarray(views, np.float64).reshape(-1, 4, 4),
-            np.asarray(boxes_n, np.float64).reshape(-1, 4), half_size, config)
-        rows, t_raw = np.arange(len(raw_frames)), times_s[raw_frames]
-        unknown = np.full(len(raw_frames), np.nan)
-        raw_points = centres[rows, track_heading(t_raw, mismatch, unknown, config.heading)]
-        first, _ = filter_target(times_s, raw_frames, raw_points, raw_cov, config)
-        heading = heading_from_velocity(first.velocity, config.heading.min_speed)
-        before = np.concatenate([[np.nan], heading[:-1]])[raw_frames]  # causal
-        raw_points = centres[rows, track_heading(t_raw, mismatch, before, config.heading)]
+    if half_size is not None and raw_frames.size:
+        raw_points, raw_cov = centre_on_box(
+            times_s, raw_frames, raw_points, raw_cov, np.asarray(views, np.float64),
+            np.asarray(boxes_n, np.float64), half_size, config)
     filtered, filter_ms = filter_target(times_s, raw_frames, raw_points, raw_cov, config)
     return TargetResult(
         class_name=config.detect.follow_class, class_id=class_id, track_id=chosen,

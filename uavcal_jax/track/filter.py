@@ -13,10 +13,13 @@ form of sec. 6.3.2)::
 Measurement: the position, ``z = p + n``, ``n ~ N(0, R_k)`` with a per-frame ``R_k`` (from
 :mod:`uavcal_jax.track.locate`). A measurement whose squared Mahalanobis distance to the
 prediction, ``y^T S^-1 y``, exceeds the chi-square quantile (3 degrees of freedom) of
-``gate_probability`` is gated out (not used). While no measurement is used the filter only
-predicts; ``lost_after`` seconds after the last used measurement the target is lost: the
-output holds the last prediction and the next valid measurement re-initialises the filter
-(position from it, velocity zero with ``init_velocity_sigma``), ungated.
+``gate_probability`` is gated out (not used), unless ``reinit_after_gated`` measurements in a
+row were: then the track has left the target (a turn the constant-velocity model did not
+follow) rather than met outliers, and the filter re-initialises from the measurement. While no
+measurement is used the filter only predicts; ``lost_after`` seconds after the last used
+measurement the target is lost: the output holds the last prediction and the next valid
+measurement re-initialises the filter (position from it, velocity zero with
+``init_velocity_sigma``), ungated.
 
 Everything is jitted and fixed-shape: inputs ``(T, ...)`` per frame, with a valid mask.
 """
@@ -64,12 +67,15 @@ class FilterConfig:
             measurement (chi-square, 3 degrees of freedom; 0.997 -> d^2 <= 14.16).
         lost_after: seconds without a used measurement before the target is lost.
         init_velocity_sigma: velocity standard deviation at (re-)initialisation, m/s.
+        reinit_after_gated: this many gated measurements in a row re-initialise the filter
+            from the last of them (0: never).
     """
 
     accel_psd: float = 1.0
     gate_probability: float = 0.997
     lost_after: float = 2.0
     init_velocity_sigma: float = 2.0
+    reinit_after_gated: int = 5
 
     def __post_init__(self):
         if self.accel_psd < 0.0:
@@ -78,6 +84,8 @@ class FilterConfig:
             raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
         if self.lost_after <= 0.0:
             raise ValueError(f"lost_after must be > 0, got {self.lost_after}")
+        if self.reinit_after_gated < 0:
+            raise ValueError(f"reinit_after_gated must be >= 0, got {self.reinit_after_gated}")
 
     @property
     def gate(self) -> float:
@@ -127,6 +135,7 @@ class _Carry(NamedTuple):
     t: jax.Array  # time of the state
     t_used: jax.Array  # time of the last used measurement
     active: jax.Array  # bool: initialised and not lost
+    gated_run: jax.Array  # int: measurements gated in a row
 
 
 def _step(config: FilterConfig, carry: _Carry, frame):
@@ -152,14 +161,17 @@ def _step(config: FilterConfig, carry: _Carry, frame):
     cho = jax.scipy.linalg.cho_factor(S)
     nis = y @ jax.scipy.linalg.cho_solve(cho, y)
     gated = active & valid & (nis > config.gate)
-    use = active & valid & ~gated
+    reinit = gated & (config.reinit_after_gated > 0) & (
+        carry.gated_run + 1 >= config.reinit_after_gated)
+    gated = gated & ~reinit
+    use = active & valid & ~gated & ~reinit
     K = jax.scipy.linalg.cho_solve(cho, H @ P_pred).T  # P H^T S^-1
     x_upd = x_pred + K @ y
     IKH = jnp.eye(6, dtype=dtype) - K @ H
     P_upd = IKH @ P_pred @ IKH.T + K @ R @ K.T  # Joseph form: stays symmetric positive
 
     # (re-)initialise from a valid measurement when not active (unseen or lost)
-    init = ~active & valid
+    init = (~active & valid) | reinit
     x_init = jnp.concatenate([z, jnp.zeros(3, dtype)])
     P_init = jnp.zeros((6, 6), dtype).at[:3, :3].set(R).at[3:, 3:].set(
         config.init_velocity_sigma ** 2 * jnp.eye(3, dtype=dtype))
@@ -172,7 +184,9 @@ def _step(config: FilterConfig, carry: _Carry, frame):
     new_active = active | init
     status = jnp.where(init | use, TRACKING,
                        jnp.where(active, PREDICTING, jnp.where(seen_ever, LOST, UNSEEN)))
-    new_carry = _Carry(x, P, jnp.where(new_active, t, carry.t), t_used, new_active)
+    gated_run = jnp.where(gated, carry.gated_run + 1, jnp.where(init | use, 0, carry.gated_run))
+    new_carry = _Carry(x, P, jnp.where(new_active, t, carry.t), t_used, new_active,
+                       gated_run.astype(jnp.int32))
     position = jnp.where(seen_ever, x[:3], jnp.nan)
     velocity = jnp.where(seen_ever, x[3:], jnp.nan)
     out = FilterOutput(position, velocity, P, status.astype(jnp.int32), gated,
@@ -202,6 +216,7 @@ def run_filter(times: jax.Array, measurements: jax.Array, covariances: jax.Array
     carry = _Carry(
         x=jnp.zeros(6, dtype), P=jnp.eye(6, dtype=dtype),
         t=times[0], t_used=jnp.asarray(jnp.nan, dtype), active=jnp.asarray(False),
+        gated_run=jnp.zeros((), jnp.int32),
     )
     frames = (times, measurements, jnp.asarray(covariances, dtype), jnp.asarray(valid, bool))
     _, out = jax.lax.scan(functools.partial(_step, config), carry, frames)
