@@ -38,6 +38,7 @@ body frame of the VIO and of the camera extrinsics; EuRoC's mounting ``R_QB``).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import time
@@ -75,7 +76,7 @@ from uavcal_jax.track.heading import (
     heading_step,
     uniform_belief,
 )
-from uavcal_jax.track.locate import box_centre_candidates, box_corners_normalized
+from uavcal_jax.track.locate import box_centre_candidates
 from uavcal_jax.vio.estimator import StereoVio
 from uavcal_jax.vio.run import one_blas_thread
 from uavcal_jax.vio.trajectory_metrics import ate
@@ -337,6 +338,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
     rec_R, true_R = np.full((F, 3, 3), np.nan), np.zeros((F, 3, 3))
     drone_yaw, sp_yaw = np.zeros(F), np.zeros(F)
     in_view, status = np.zeros(F, bool), np.full(F, UNSEEN, np.int32)
+    unmeasured = np.full(F, "", dtype=object)  # why a frame has no measurement
     T_err_all = np.tile(np.eye(4), (F, 1, 1))
     ms = {s: np.zeros(F) for s in STAGES}
     bar = progress_bar(total=F, desc=f"closed loop ({config.pose} pose)", enabled=show_progress,
@@ -394,16 +396,23 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
             # 5. locate
             c0 = time.perf_counter()
             z, R, valid = np.zeros(3), np.eye(3), False
-            if box is not None and T_pose is not None and not _cut_by_border(
+            if box is None:
+                unmeasured[j] = "not detected"
+            elif T_pose is None:
+                unmeasured[j] = "no pose"
+            elif half_size is None and _cut_by_border(  # a box model is cut there too
                     box, config.resolution, run.detect.border_px):
+                unmeasured[j] = "cut by the border"
+            else:
                 loc = locate_box(np.asarray(box, np.float32), depth, camera, T_BS[0], T_pose,
                                  extent, run.locate)
+                unmeasured[j] = "" if bool(loc.located) else "not located"
                 if bool(loc.located):
                     z, R, valid = np.asarray(loc.point), np.asarray(loc.covariance), True
                     if half_size is not None:  # the front surface -> the box's centre
-                        box_n = box_corners_normalized(np.asarray(box, np.float64), camera)
                         centres, mismatch = box_centre_candidates(
-                            z, T_pose @ T_BS[0], np.asarray(half_size), box_n, run.locate)
+                            z, T_pose @ T_BS[0], np.asarray(half_size),
+                            np.asarray(box, np.float64), camera, run.locate)
                         belief = heading_step(belief, 0.0 if t_belief is None else
                                               t_rel - t_belief, np.asarray(mismatch),
                                               velocity_heading, run.heading)
@@ -420,6 +429,8 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                                        jnp.asarray(z, carry.x.dtype), jnp.asarray(R, carry.x.dtype),
                                        jnp.asarray(valid), run.filter)
             status[j] = int(fout.status)
+            if bool(fout.gated):
+                unmeasured[j] = "gated"
             target_pos = np.asarray(fout.position, np.float64)
             velocity_heading = float(heading_from_velocity(
                 np.asarray(fout.velocity)[None], run.heading.min_speed)[0])
@@ -459,7 +470,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
     t = np.arange(F) * dt_frame
     following = t + config.lead_s >= config.path.wait_s
     return _result(config, detector_name, t, t_imu[lead::rate_ratio][:F], rec, rec_R, true_R,
-                   drone_yaw, in_view, status, sp_yaw, following, ms)
+                   drone_yaw, in_view, status, sp_yaw, following, ms, unmeasured)
 
 
 def status_name(code: int) -> str:
@@ -479,7 +490,7 @@ def _episodes(mask: np.ndarray, dt: float) -> list[float]:
 
 
 def _result(config, detector_name, t, t_ns, rec, rec_R, true_R, drone_yaw, in_view, status,
-            sp_yaw, following, ms) -> ClosedLoopResult:
+            sp_yaw, following, ms, unmeasured) -> ClosedLoopResult:
     """Align the pose's world to the truth and compute the metrics."""
     fcfg = config.run.follow
     dt = 1.0 / config.camera_rate_hz
@@ -529,7 +540,9 @@ def _result(config, detector_name, t, t_ns, rec, rec_R, true_R, drone_yaw, in_vi
         "measured_fraction": float(np.mean(status[w] == TRACKING)) if w.any() else None,
         "losses": {"count": len(gaps), "durations_s": gaps,
                    "longest_s": max(gaps, default=0.0),
-                   "lost_status_episodes_s": lost},
+                   "lost_status_episodes_s": lost,
+                   "frames_by_reason": dict(collections.Counter(
+                       str(r) for r in unmeasured[w & seen & (status != TRACKING)] if r))},
         "localisation_rmse_m": {"raw": _stats(raw_err[w]), "filtered": _stats(filt_err[w])},
         "vio_ate_m": ate_m,
         "ms_per_frame": {s: {"mean": float(np.mean(v[warm:])) if len(v) > warm else None,

@@ -37,12 +37,12 @@ import numpy as np
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.detect.predict import ImageDetections
 from uavcal_jax.errors import DataError
-from uavcal_jax.geometry.camera import from_calibration
+from uavcal_jax.geometry.camera import PinholeRadtan, from_calibration
 from uavcal_jax.pipeline.run_config import RunConfig
 from uavcal_jax.track import REASONS, FilterOutput, assign_track_ids, locate_box, longest_track
 from uavcal_jax.track.filter import run_filter
 from uavcal_jax.track.heading import heading_from_velocity, heading_spread, track_heading
-from uavcal_jax.track.locate import box_centre_candidates, box_corners_normalized
+from uavcal_jax.track.locate import box_centre_candidates
 from uavcal_jax.track.stereo import locate_box_stereo, rectify_stereo
 
 __all__ = ["LOCALISATION_MODES", "Localizer", "LocatedPoint", "TargetResult", "build_localizer",
@@ -58,14 +58,13 @@ NO_POSE, BORDER = "no VIO pose at the frame", "box cut by the image border"
 class LocatedPoint:
     """One box's localisation: ``point`` (3,) world metres and ``covariance`` (3, 3) m^2
     (NaN unless ``reason == "located"``); the view it was located in: ``T_WC`` (4, 4) the left
-    camera's pose and ``box_normalized`` (4,) the box's corners in normalised (undistorted)
-    image coordinates."""
+    camera's pose and ``box`` (4,) the box (pixel edges)."""
 
     point: np.ndarray
     covariance: np.ndarray
     reason: str
     T_WC: np.ndarray = dataclasses.field(default_factory=lambda: np.full((4, 4), np.nan))
-    box_normalized: np.ndarray = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
+    box: np.ndarray = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
 
     @property
     def located(self) -> bool:
@@ -84,7 +83,9 @@ class Localizer:
         self._left = cam0
         self._size = cam0.calibration.resolution
         self._T_BC = np.asarray(cam0.calibration.T_BS, np.float64)
-        self._camera = from_calibration(cam0.calibration)
+        #: the left camera's model
+        self.camera = from_calibration(cam0.calibration)
+        self._box_model = config.detect.target_half_size() is not None
         self._depth = sequence.depth.get("depth0")
         self._depth_index = {} if self._depth is None else {
             int(t): i for i, t in enumerate(self._depth.t_ns)}
@@ -93,7 +94,7 @@ class Localizer:
             int(t): i for i, t in enumerate(self._right.t_ns)}
         self._rect = None
         if mode == "stereo":
-            self._rect = rectify_stereo(self._camera, from_calibration(self._right.calibration),
+            self._rect = rectify_stereo(self.camera, from_calibration(self._right.calibration),
                                         self._T_BC, self._right.calibration.T_BS)
 
     def cut_by_border(self, box) -> bool:
@@ -105,6 +106,12 @@ class Localizer:
         x1, y1, x2, y2 = (float(v) for v in box)
         return x1 <= margin or y1 <= margin or x2 >= w - margin or y2 >= h - margin
 
+    def can_locate(self, box) -> bool:
+        """A box can be located: inside the image, or cut by its border but of a class with a
+        box model, which is cut as the detector's box is
+        (:data:`~uavcal_jax.pipeline.run_config.CLASS_HALF_SIZE_M`)."""
+        return self._box_model or not self.cut_by_border(box)
+
     def locate(self, frame: int, box, T_WB: np.ndarray | None) -> LocatedPoint:
         """The world point of ``box`` (4,) in left frame ``frame`` seen from pose ``T_WB``
         (4, 4) (``None``: no pose)."""
@@ -113,7 +120,7 @@ class Localizer:
             return nan
         if T_WB is None or not np.all(np.isfinite(T_WB)):
             return dataclasses.replace(nan, reason=NO_POSE)
-        if self.cut_by_border(box):
+        if not self.can_locate(box):
             return dataclasses.replace(nan, reason=BORDER)
         t_ns = int(self._left.t_ns[frame])
         cfg = self._config.locate
@@ -121,7 +128,7 @@ class Localizer:
             i = self._depth_index.get(t_ns)
             if i is None:
                 return dataclasses.replace(nan, reason="no depth image at the frame")
-            out = locate_box(np.asarray(box, np.float32), self._depth.load(i), self._camera,
+            out = locate_box(np.asarray(box, np.float32), self._depth.load(i), self.camera,
                              self._T_BC, T_WB, self._extent, cfg)
         else:
             j = self._right_index.get(t_ns)
@@ -130,11 +137,9 @@ class Localizer:
             out = locate_box_stereo(box, self._left.load(frame), self._right.load(j), self._rect,
                                     self._T_BC, T_WB, self._extent, cfg, self._config.stereo)
         reason = REASONS[int(out.reason)]
-        box_normalized = box_corners_normalized(np.asarray(box, np.float64), self._camera)
         return LocatedPoint(np.asarray(out.point, np.float64),
                             np.asarray(out.covariance, np.float64), reason,
-                            np.asarray(T_WB, np.float64) @ self._T_BC,
-                            np.asarray(box_normalized, np.float64))
+                            np.asarray(T_WB, np.float64) @ self._T_BC, np.asarray(box, np.float64))
 
 
 def build_localizer(sequence: Sequence, config: RunConfig) -> Localizer:
@@ -212,28 +217,30 @@ def filter_target(times_s: np.ndarray, raw_frames: np.ndarray, raw_points: np.nd
     return FilterOutput(*(np.asarray(a) for a in out)), tuple(ms)
 
 
-def centre_candidates(front: np.ndarray, T_WC: np.ndarray, box_normalized: np.ndarray,
-                      half_size, config: RunConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Front-surface points (R, 3), seen from the camera poses ``T_WC`` (R, 4, 4) in boxes
-    ``box_normalized`` (R, 4): the centres (R, H, 3) of boxes with ``half_size`` (3,) metres at
-    each candidate heading, and each one's shape mismatch (R, H)
-    (:func:`uavcal_jax.track.locate.box_centre_candidates`)."""
-    fit = jax.vmap(box_centre_candidates, in_axes=(0, 0, None, 0, None))
-    centres, mismatch = fit(front, T_WC, np.asarray(half_size, np.float64), box_normalized,
+def centre_candidates(front: np.ndarray, T_WC: np.ndarray, boxes: np.ndarray,
+                      camera: PinholeRadtan, half_size, config: RunConfig
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Front-surface points (R, 3), seen from the camera poses ``T_WC`` (R, 4, 4) in ``boxes``
+    (R, 4) (pixel edges) of ``camera``: the centres
+    (R, H, 3) of boxes with ``half_size`` (3,) metres at each candidate heading, and each
+    one's shape mismatch (R, H) (:func:`uavcal_jax.track.locate.box_centre_candidates`)."""
+    fit = jax.vmap(box_centre_candidates, in_axes=(0, 0, None, 0, None, None))
+    centres, mismatch = fit(front, T_WC, np.asarray(half_size, np.float64), boxes, camera,
                             config.locate)
     return np.asarray(centres, np.float64), np.asarray(mismatch, np.float64)
 
 
 def centre_on_box(times_s: np.ndarray, raw_frames: np.ndarray, front: np.ndarray,
-                  located_cov: np.ndarray, T_WC: np.ndarray, box_normalized: np.ndarray,
-                  half_size, config: RunConfig) -> tuple[np.ndarray, np.ndarray]:
+                  located_cov: np.ndarray, T_WC: np.ndarray, boxes: np.ndarray,
+                  camera: PinholeRadtan, half_size, config: RunConfig
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """The box model's centres (R, 3) and their covariances (R, 3, 3) for the front-surface
     points ``front`` (R, 3) located at ``raw_frames`` (R,) of the frames at ``times_s`` (T,)
     (covariances ``located_cov`` (R, 3, 3), camera poses ``T_WC`` (R, 4, 4), boxes
-    ``box_normalized`` (R, 4)): the heading tracked from the boxes' shapes, filtered, then
-    tracked again with the filtered velocity of the frame before (the module docstring); the
-    heading's spread is added to each covariance."""
-    centres, mismatch = centre_candidates(front, T_WC, box_normalized, half_size, config)
+    ``boxes`` (R, 4) in ``camera``'s image): the heading tracked
+    from the boxes' shapes, filtered, then tracked again with the filtered velocity of the
+    frame before (the module docstring); the heading's spread is added to each covariance."""
+    centres, mismatch = centre_candidates(front, T_WC, boxes, camera, half_size, config)
     rows, t_raw = np.arange(len(raw_frames)), times_s[raw_frames]
 
     def at_heading(velocity_heading):
@@ -272,13 +279,13 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     track_ids: list[np.ndarray | None] = [None] * T
     for k, ids in zip(ran, ids_ran, strict=True):
         track_ids[k] = ids
-    inside = [np.array([not localizer.cut_by_border(b) for b in detections[k].boxes], bool)
+    inside = [np.array([localizer.can_locate(b) for b in detections[k].boxes], bool)
               for k in ran]
     chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id, inside)
     if chosen is None:  # every box of the class is cut by the border: follow it anyway
         chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id)
     boxes, scores = np.full((T, 4), np.nan), np.full(T, np.nan)
-    raw_frames, points, covs, views, boxes_n, locate_ms = [], [], [], [], [], []
+    raw_frames, points, covs, views, seen_boxes, locate_ms = [], [], [], [], [], []
     not_located: collections.Counter = collections.Counter()
     if chosen is not None:
         for k in ran:
@@ -294,7 +301,7 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
                 points.append(located.point)
                 covs.append(located.covariance)
                 views.append(located.T_WC)
-                boxes_n.append(located.box_normalized)
+                seen_boxes.append(located.box)
             else:
                 not_located[located.reason] += 1
     times_s = (cam0.t_ns - cam0.t_ns[0]).astype(np.float64) * 1e-9
@@ -305,7 +312,7 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     if half_size is not None and raw_frames.size:
         raw_points, raw_cov = centre_on_box(
             times_s, raw_frames, raw_points, raw_cov, np.asarray(views, np.float64),
-            np.asarray(boxes_n, np.float64), half_size, config)
+            np.asarray(seen_boxes, np.float64), localizer.camera, half_size, config)
     filtered, filter_ms = filter_target(times_s, raw_frames, raw_points, raw_cov, config)
     return TargetResult(
         class_name=config.detect.follow_class, class_id=class_id, track_id=chosen,

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from uavcal_jax.geometry.camera import PinholeRadtan, pixels_to_normalized
+from uavcal_jax.geometry.camera import PinholeRadtan, pixels_to_normalized, project_normalized
 
 __all__ = [
     "LOCATED",
@@ -50,7 +50,6 @@ __all__ = [
     "LocateConfig",
     "Located",
     "box_center",
-    "box_corners_normalized",
     "box_depth",
     "CANDIDATE_HEADINGS",
     "box_centre",
@@ -154,14 +153,6 @@ def box_center(box: jax.Array) -> jax.Array:
     """(2,) the box centre ``(u, v)`` in the camera model's pixel-centre convention."""
     box = jnp.asarray(box)
     return 0.5 * (box[:2] + box[2:4]) - 0.5
-
-
-@jax.jit
-def box_corners_normalized(box: jax.Array, cam: PinholeRadtan) -> jax.Array:
-    """(4,) a box's corners ``(x1, y1, x2, y2)`` (pixel edges) in normalised, undistorted image
-    coordinates (the shape :func:`box_centre_candidates` fits)."""
-    corners = jnp.asarray(box).reshape(2, 2) - 0.5  # edges -> the model's pixel centres
-    return pixels_to_normalized(corners, cam).reshape(4)
 
 
 def _lower_quantile(sorted_values: jax.Array, count: jax.Array, q: float) -> jax.Array:
@@ -345,34 +336,44 @@ def _yaw_matrix(yaw):
                       jnp.stack([zero, zero, one])])
 
 
-def _seen_box(centre_C, R_CT, half):
-    """The image box, ``(lo, hi)`` (2,) each in normalised coordinates, of a box with centre
-    ``centre_C`` (camera frame), box-to-camera rotation ``R_CT`` and half sizes ``half``."""
+def _seen_box(centre_C, R_CT, half, cam: PinholeRadtan):
+    """The image box ``(lo, hi)`` (2,) each, pixel-edge coordinates, of a box with centre
+    ``centre_C`` (camera frame), box-to-camera rotation ``R_CT`` and half sizes ``half``: the
+    bounding box of its projected corners (lens distortion included), cut by the image's
+    border as a detector's box is."""
     corners = centre_C + (_CORNERS * half) @ R_CT.T
     xy = corners[:, :2] / jnp.maximum(corners[:, 2:], 1e-3)
-    return xy.min(axis=0), xy.max(axis=0)
+    uv = project_normalized(xy, cam) + 0.5  # pixel centres -> edges
+    size = jnp.asarray(cam.resolution, uv.dtype)
+    lo = jnp.clip(uv.min(axis=0), 0.0, size)
+    return lo, jnp.clip(uv.max(axis=0), lo, size)
 
 
-def _seen_front(centre_C, R_CT, half, config: LocateConfig):
+def _unit_z_rays(uv_edges, cam: PinholeRadtan):
+    """Pixel-edge coordinates (..., 2) -> undistorted rays (..., 3) with unit z."""
+    xy = pixels_to_normalized(uv_edges - 0.5, cam)
+    return jnp.concatenate([xy, jnp.ones_like(xy[..., :1])], axis=-1)
+
+
+def _seen_front(centre_C, R_CT, half, cam: PinholeRadtan, config: LocateConfig):
     """Where :func:`locate_box` puts a box with centre ``centre_C`` (3,) (camera frame), box-to-
-    camera rotation ``R_CT`` and half sizes ``half``: its image box is the bounding box of the
-    projected corners, sampled as :func:`box_depth` samples it (in normalised coordinates, so
-    without the lens distortion), each sample's depth where its ray enters the box (a miss is a
-    hole), the robust depth of those, along the ray through the image box's centre."""
-    lo, hi = _seen_box(centre_C, R_CT, half)
-    xy = lo[None]
+    camera rotation ``R_CT`` and half sizes ``half``: its image box (:func:`_seen_box`) is
+    sampled as :func:`box_depth` samples it, each sample's depth is where its ray enters the
+    box (a miss is a hole), and the robust depth of those is taken along the ray through the
+    image box's centre."""
+    lo, hi = _seen_box(centre_C, R_CT, half, cam)
     mid, reach = 0.5 * (lo + hi), 0.5 * config.shrink * (hi - lo)
     s = min(config.samples, _MODEL_SAMPLES)
-    offsets = (jnp.arange(s, dtype=xy.dtype) + 0.5) / s * 2.0 - 1.0
+    offsets = (jnp.arange(s, dtype=lo.dtype) + 0.5) / s * 2.0 - 1.0
     gx, gy = jnp.meshgrid(mid[0] + offsets * reach[0], mid[1] + offsets * reach[1])
-    rays = jnp.stack([gx.ravel(), gy.ravel(), jnp.ones(s * s, xy.dtype)], axis=-1)
+    rays = _unit_z_rays(jnp.stack([gx.ravel(), gy.ravel()], axis=-1), cam)
     origin = -R_CT.T @ centre_C
     t, hit = jax.vmap(lambda r: _slab_entry(origin, R_CT.T @ r, half))(rays)
     depth = robust_depth(jnp.where(hit, t, jnp.nan), config).depth  # rays have unit z
-    return depth * jnp.concatenate([mid, jnp.ones(1, xy.dtype)])
+    return depth * _unit_z_rays(mid, cam)
 
 
-def _fit_centre(front_C, R_CT, half, config: LocateConfig):
+def _fit_centre(front_C, R_CT, half, cam: PinholeRadtan, config: LocateConfig):
     """The box centre (camera frame) whose :func:`_seen_front` is ``front_C``: a fixed point,
     started from the front point moved along its ray to where the ray would leave the box's
     far side half-way (the centre of a box that ray passes through the middle of)."""
@@ -380,18 +381,19 @@ def _fit_centre(front_C, R_CT, half, config: LocateConfig):
     start = front_C + jnp.min(half / jnp.maximum(jnp.abs(R_CT.T @ ray), 1e-9)) * ray
 
     def step(_, centre):
-        seen = _seen_front(centre, R_CT, half, config)
+        seen = _seen_front(centre, R_CT, half, cam, config)
         return centre + jnp.where(jnp.all(jnp.isfinite(seen)), front_C - seen, 0.0)
 
     centre = jax.lax.fori_loop(0, _CENTRE_STEPS, step, start)
     # a fit that did not settle (a view the fixed point cannot follow) keeps the start
-    miss = jnp.linalg.norm(_seen_front(centre, R_CT, half, config) - front_C)
+    miss = jnp.linalg.norm(_seen_front(centre, R_CT, half, cam, config) - front_C)
     return jnp.where(miss <= _CENTRE_TOLERANCE * jnp.linalg.norm(front_C), centre, start)
 
 
 @functools.partial(jax.jit, static_argnames="config")
 def box_centre_candidates(front: jax.Array, T_WC: jax.Array, half_size: jax.Array,
-                          box_normalized: jax.Array, config: LocateConfig = LocateConfig()
+                          box: jax.Array, cam: PinholeRadtan,
+                          config: LocateConfig = LocateConfig()
                           ) -> tuple[jax.Array, jax.Array]:
     """The box centre for each of :data:`CANDIDATE_HEADINGS`, and how well each explains the
     detected box's shape.
@@ -406,23 +408,31 @@ def box_centre_candidates(front: jax.Array, T_WC: jax.Array, half_size: jax.Arra
         front: (3,) world front-surface point, metres.
         T_WC: (4, 4) camera-to-world pose it was seen from.
         half_size: (3,) half sizes, metres: along the heading, across it, up (world z).
-        box_normalized: (4,) the detected box's corners ``(x1, y1, x2, y2)`` in normalised
-            image coordinates (undistorted).
+        box: (4,) the detected box ``(x1, y1, x2, y2)``, pixel-edge coordinates (the module
+            docstring).
+        cam: the camera model (its lens distortion and image size: a model box beyond the
+            image is cut by its border as the detector's is, so a target cut by the border is
+            located too).
         config: the :class:`LocateConfig` ``front`` was located with.
 
     Returns:
         ``(centres, mismatch)``: (H, 3) world centres, metres, and (H,) the squared distance of
         each centre's image box corners from the detected ones, over the detected box's
         squared diagonal (0: the box's shape fits exactly).
+
+    The model box is the bounding box of the projected corners and is sampled on a coarser
+    grid than :func:`box_depth`'s; both are exact for a box seen near the image's centre and
+    approximate where the lens distortion bends its edges.
     """
     R_WC, p_WC = T_WC[:3, :3], T_WC[:3, 3]
     front_C = R_WC.T @ (front - p_WC)
     half = jnp.asarray(half_size, front_C.dtype)
     headings = jnp.asarray(CANDIDATE_HEADINGS, front_C.dtype)
     rotations = jax.vmap(lambda h: R_WC.T @ _yaw_matrix(h))(headings)
-    centres = jax.vmap(lambda R: _fit_centre(front_C, R, half, config))(rotations)
-    lo, hi = jax.vmap(lambda c, R: _seen_box(c, R, half))(centres, rotations)
-    box = jnp.asarray(box_normalized, front_C.dtype)
+    centres = jax.vmap(lambda R: _fit_centre(front_C, R, half, cam, config))(rotations)
+    lo, hi = jax.vmap(lambda c, R: _seen_box(c, R, half, cam))(centres, rotations)
+    size = jnp.tile(jnp.asarray(cam.resolution, front_C.dtype), 2)
+    box = jnp.clip(jnp.asarray(box, front_C.dtype), 0.0, size)  # cut as the model's is
     diagonal = jnp.sum((box[2:] - box[:2]) ** 2)
     mismatch = jnp.sum((lo - box[:2]) ** 2 + (hi - box[2:]) ** 2, axis=-1) / diagonal
     return centres @ R_WC.T + p_WC, mismatch
@@ -430,15 +440,16 @@ def box_centre_candidates(front: jax.Array, T_WC: jax.Array, half_size: jax.Arra
 
 @functools.partial(jax.jit, static_argnames="config")
 def box_centre(front: jax.Array, T_WC: jax.Array, half_size: jax.Array, yaw: jax.Array,
-               box_normalized: jax.Array, config: LocateConfig = LocateConfig()) -> jax.Array:
+               box: jax.Array, cam: PinholeRadtan,
+               config: LocateConfig = LocateConfig()) -> jax.Array:
     """The centre (3,) world metres of an upright box seen with heading ``yaw`` () radians, or,
     with ``yaw`` NaN, of the candidate heading that best fits the box's shape (arguments as
     :func:`box_centre_candidates`)."""
-    centres, mismatch = box_centre_candidates(front, T_WC, half_size, box_normalized, config)
+    centres, mismatch = box_centre_candidates(front, T_WC, half_size, box, cam, config)
     R_WC, p_WC = T_WC[:3, :3], T_WC[:3, 3]
     front_C = R_WC.T @ (front - p_WC)
     known = jnp.isfinite(yaw)
     rotation = R_WC.T @ _yaw_matrix(jnp.where(known, yaw, 0.0).astype(front_C.dtype))
     centre = R_WC @ _fit_centre(front_C, rotation, jnp.asarray(half_size, front_C.dtype),
-                                config) + p_WC
+                                cam, config) + p_WC
     return jnp.where(known, centre, centres[jnp.argmin(mismatch)])
