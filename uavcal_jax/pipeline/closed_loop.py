@@ -410,7 +410,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                 if bool(loc.located):
                     z, R, valid = np.asarray(loc.point), np.asarray(loc.covariance), True
                     if half_size is not None:  # the front surface -> the box's centre
-                        centres, mismatch, visible = box_centre_candidates(
+                        centres, mismatch = box_centre_candidates(
                             z, T_pose @ T_BS[0], np.asarray(half_size),
                             np.asarray(box, np.float64), camera, run.locate)
                         belief = heading_step(belief, 0.0 if t_belief is None else
@@ -420,10 +420,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                         chosen = int(np.argmax(belief))
                         R = R + heading_spread(np.asarray(centres), belief, chosen)
                         z = np.asarray(centres[chosen], np.float64)
-                        if float(visible[chosen]) < run.detect.min_visible:
-                            valid, unmeasured[j] = False, "cut by the border"
-                    if valid:
-                        rec["raw_pose"][j] = z
+                    rec["raw_pose"][j] = z
             ms["locate"][j] = 1e3 * (time.perf_counter() - c0)
 
             # 6. filter

@@ -66,11 +66,7 @@ class DetectStageConfig:
             :data:`CLASS_HALF_SIZE_M`, turned by the target's heading.
         border_px: a box within this many pixels of the image border is cut by it (the
             target is partly outside the image); its centre is not the target's, so it is
-            not located, unless the class has a box model (which is cut there too). Negative:
-            locate every box.
-        min_visible: a box-modelled target cut by the border is located only where the model
-            puts at least this share of its image box inside the image (a sliver at the edge
-            says little of where the centre is).
+            not located. Negative: locate every box.
     """
 
     every: int = 1
@@ -78,7 +74,6 @@ class DetectStageConfig:
     follow_class: str = "car"
     extent: float | None = None
     border_px: float = 1.0
-    min_visible: float = 0.6
 
     def __post_init__(self):
         if self.every < 1:

@@ -219,40 +219,36 @@ def filter_target(times_s: np.ndarray, raw_frames: np.ndarray, raw_points: np.nd
 
 def centre_candidates(front: np.ndarray, T_WC: np.ndarray, boxes: np.ndarray,
                       camera: PinholeRadtan, half_size, config: RunConfig
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """Front-surface points (R, 3), seen from the camera poses ``T_WC`` (R, 4, 4) in ``boxes``
-    (R, 4) (pixel edges) of ``camera``: at each candidate heading, the centres (R, H, 3) of
-    boxes with ``half_size`` (3,) metres, their shape mismatch (R, H) and the share of their
-    image box inside the image (R, H) (:func:`uavcal_jax.track.locate.box_centre_candidates`)."""
+    (R, 4) (pixel edges) of ``camera``: the centres
+    (R, H, 3) of boxes with ``half_size`` (3,) metres at each candidate heading, and each
+    one's shape mismatch (R, H) (:func:`uavcal_jax.track.locate.box_centre_candidates`)."""
     fit = jax.vmap(box_centre_candidates, in_axes=(0, 0, None, 0, None, None))
-    out = fit(front, T_WC, np.asarray(half_size, np.float64), boxes, camera, config.locate)
-    return tuple(np.asarray(a, np.float64) for a in out)
+    centres, mismatch = fit(front, T_WC, np.asarray(half_size, np.float64), boxes, camera,
+                            config.locate)
+    return np.asarray(centres, np.float64), np.asarray(mismatch, np.float64)
 
 
 def centre_on_box(times_s: np.ndarray, raw_frames: np.ndarray, front: np.ndarray,
                   located_cov: np.ndarray, T_WC: np.ndarray, boxes: np.ndarray,
                   camera: PinholeRadtan, half_size, config: RunConfig
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """The box model's centres (R, 3) and their covariances (R, 3, 3) for the front-surface
     points ``front`` (R, 3) located at ``raw_frames`` (R,) of the frames at ``times_s`` (T,)
-    (covariances ``located_cov`` (R, 3, 3), camera poses ``T_WC`` (R, 4, 4), ``boxes``
-    (R, 4) in ``camera``'s image), and which to keep (R,) bool: the image shows at least
-    ``detect.min_visible`` of the target's box.
-
-    The heading is tracked from the boxes' shapes, the kept centres filtered, then the heading
-    tracked again with the filtered velocity of the frame before (the module docstring); the
-    heading's spread is added to each covariance."""
-    centres, mismatch, visible = centre_candidates(front, T_WC, boxes, camera, half_size,
-                                                   config)
+    (covariances ``located_cov`` (R, 3, 3), camera poses ``T_WC`` (R, 4, 4), boxes
+    ``boxes`` (R, 4) in ``camera``'s image): the heading tracked
+    from the boxes' shapes, filtered, then tracked again with the filtered velocity of the
+    frame before (the module docstring); the heading's spread is added to each covariance."""
+    centres, mismatch = centre_candidates(front, T_WC, boxes, camera, half_size, config)
     rows, t_raw = np.arange(len(raw_frames)), times_s[raw_frames]
 
     def at_heading(velocity_heading):
         pick, belief = track_heading(t_raw, mismatch, velocity_heading, config.heading)
-        return (centres[rows, pick], located_cov + heading_spread(centres, belief, pick),
-                visible[rows, pick] >= config.detect.min_visible)
+        return centres[rows, pick], located_cov + heading_spread(centres, belief, pick)
 
-    points, cov, keep = at_heading(np.full(len(raw_frames), np.nan))  # the shapes alone
-    first, _ = filter_target(times_s, raw_frames[keep], points[keep], cov[keep], config)
+    points, cov = at_heading(np.full(len(raw_frames), np.nan))  # the shapes alone
+    first, _ = filter_target(times_s, raw_frames, points, cov, config)
     heading = heading_from_velocity(first.velocity, config.heading.min_speed)
     return at_heading(np.concatenate([[np.nan], heading[:-1]])[raw_frames])  # causal
 
@@ -314,12 +310,9 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     raw_cov = np.asarray(covs, np.float64).reshape(-1, 3, 3)
     half_size = config.detect.target_half_size()
     if half_size is not None and raw_frames.size:
-        raw_points, raw_cov, keep = centre_on_box(
+        raw_points, raw_cov = centre_on_box(
             times_s, raw_frames, raw_points, raw_cov, np.asarray(views, np.float64),
             np.asarray(seen_boxes, np.float64), localizer.camera, half_size, config)
-        if not keep.all():
-            not_located[BORDER] += int(np.sum(~keep))
-            raw_frames, raw_points, raw_cov = raw_frames[keep], raw_points[keep], raw_cov[keep]
     filtered, filter_ms = filter_target(times_s, raw_frames, raw_points, raw_cov, config)
     return TargetResult(
         class_name=config.detect.follow_class, class_id=class_id, track_id=chosen,

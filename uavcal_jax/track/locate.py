@@ -336,16 +336,14 @@ def _yaw_matrix(yaw):
                       jnp.stack([zero, zero, one])])
 
 
-def _seen_box(centre_C, R_CT, half, cam: PinholeRadtan, cut: bool = True):
+def _seen_box(centre_C, R_CT, half, cam: PinholeRadtan):
     """The image box ``(lo, hi)`` (2,) each, pixel-edge coordinates, of a box with centre
     ``centre_C`` (camera frame), box-to-camera rotation ``R_CT`` and half sizes ``half``: the
     bounding box of its projected corners (lens distortion included), cut by the image's
-    border as a detector's box is (unless ``cut`` is false)."""
+    border as a detector's box is."""
     corners = centre_C + (_CORNERS * half) @ R_CT.T
     xy = corners[:, :2] / jnp.maximum(corners[:, 2:], 1e-3)
     uv = project_normalized(xy, cam) + 0.5  # pixel centres -> edges
-    if not cut:
-        return uv.min(axis=0), uv.max(axis=0)
     size = jnp.asarray(cam.resolution, uv.dtype)
     lo = jnp.clip(uv.min(axis=0), 0.0, size)
     return lo, jnp.clip(uv.max(axis=0), lo, size)
@@ -396,9 +394,9 @@ def _fit_centre(front_C, R_CT, half, cam: PinholeRadtan, config: LocateConfig):
 def box_centre_candidates(front: jax.Array, T_WC: jax.Array, half_size: jax.Array,
                           box: jax.Array, cam: PinholeRadtan,
                           config: LocateConfig = LocateConfig()
-                          ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """The box centre for each of :data:`CANDIDATE_HEADINGS`, how well each explains the
-    detected box's shape, and how much of it the image shows.
+                          ) -> tuple[jax.Array, jax.Array]:
+    """The box centre for each of :data:`CANDIDATE_HEADINGS`, and how well each explains the
+    detected box's shape.
 
     :func:`locate_box` (with no extent) returns where the ray through the centre of the box's
     image enters the target; for a box seen from above and aside that ray misses the box's
@@ -418,11 +416,9 @@ def box_centre_candidates(front: jax.Array, T_WC: jax.Array, half_size: jax.Arra
         config: the :class:`LocateConfig` ``front`` was located with.
 
     Returns:
-        ``(centres, mismatch, visible)``: (H, 3) world centres, metres; (H,) the squared
-        distance of each centre's image box corners from the detected ones, over the detected
-        box's squared diagonal (0: the box's shape fits exactly); (H,) the share of each
-        centre's image box inside the image (1: not cut by the border; a sliver at the edge
-        says little of where the centre is).
+        ``(centres, mismatch)``: (H, 3) world centres, metres, and (H,) the squared distance of
+        each centre's image box corners from the detected ones, over the detected box's
+        squared diagonal (0: the box's shape fits exactly).
 
     The model box is the bounding box of the projected corners and is sampled on a coarser
     grid than :func:`box_depth`'s; both are exact for a box seen near the image's centre and
@@ -435,15 +431,11 @@ def box_centre_candidates(front: jax.Array, T_WC: jax.Array, half_size: jax.Arra
     rotations = jax.vmap(lambda h: R_WC.T @ _yaw_matrix(h))(headings)
     centres = jax.vmap(lambda R: _fit_centre(front_C, R, half, cam, config))(rotations)
     lo, hi = jax.vmap(lambda c, R: _seen_box(c, R, half, cam))(centres, rotations)
-    lo_whole, hi_whole = jax.vmap(lambda c, R: _seen_box(c, R, half, cam, cut=False))(
-        centres, rotations)
-    visible = jnp.prod(hi - lo, axis=-1) / jnp.maximum(jnp.prod(hi_whole - lo_whole, axis=-1),
-                                                        1e-9)
     size = jnp.tile(jnp.asarray(cam.resolution, front_C.dtype), 2)
     box = jnp.clip(jnp.asarray(box, front_C.dtype), 0.0, size)  # cut as the model's is
     diagonal = jnp.sum((box[2:] - box[:2]) ** 2)
     mismatch = jnp.sum((lo - box[:2]) ** 2 + (hi - box[2:]) ** 2, axis=-1) / diagonal
-    return centres @ R_WC.T + p_WC, mismatch, visible
+    return centres @ R_WC.T + p_WC, mismatch
 
 
 @functools.partial(jax.jit, static_argnames="config")
@@ -453,7 +445,7 @@ def box_centre(front: jax.Array, T_WC: jax.Array, half_size: jax.Array, yaw: jax
     """The centre (3,) world metres of an upright box seen with heading ``yaw`` () radians, or,
     with ``yaw`` NaN, of the candidate heading that best fits the box's shape (arguments as
     :func:`box_centre_candidates`)."""
-    centres, mismatch, _ = box_centre_candidates(front, T_WC, half_size, box, cam, config)
+    centres, mismatch = box_centre_candidates(front, T_WC, half_size, box, cam, config)
     R_WC, p_WC = T_WC[:3, :3], T_WC[:3, 3]
     front_C = R_WC.T @ (front - p_WC)
     known = jnp.isfinite(yaw)
