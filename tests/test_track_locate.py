@@ -334,3 +334,15 @@ def test_box_centre_locates_a_car_cut_by_the_image_border():
     ray = (front - cam_pos) / np.linalg.norm(front - cam_pos)
     assert np.linalg.norm(found - centre) < 0.25
     assert np.linalg.norm(front + 1.25 * ray - centre) > 2 * np.linalg.norm(found - centre)
+
+
+def test_border_covariance_opens_the_cut_axis_only():
+    R_WC = Rotation.from_euler("zyx", [0.4, 0.1, -0.2]).as_matrix()
+    half = np.array([2.1, 0.875, 0.725])
+    inside = L.border_covariance([20, 30, 100, 90], (376, 240), R_WC, half)
+    np.testing.assert_allclose(inside, 0.0)
+    left = L.border_covariance([0, 30, 100, 90], (376, 240), R_WC, half)
+    np.testing.assert_allclose(left @ R_WC[:, 0], 2.1 ** 2 * R_WC[:, 0])
+    np.testing.assert_allclose(left @ R_WC[:, 1], 0.0, atol=1e-12)
+    both = L.border_covariance([0, 30, 100, 240], (376, 240), R_WC, half)
+    assert np.linalg.matrix_rank(both) == 2

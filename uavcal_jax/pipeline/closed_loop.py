@@ -76,7 +76,7 @@ from uavcal_jax.track.heading import (
     heading_step,
     uniform_belief,
 )
-from uavcal_jax.track.locate import box_centre_candidates
+from uavcal_jax.track.locate import border_covariance, box_centre_candidates
 from uavcal_jax.vio.estimator import StereoVio
 from uavcal_jax.vio.run import one_blas_thread
 from uavcal_jax.vio.trajectory_metrics import ate
@@ -400,7 +400,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                 unmeasured[j] = "not detected"
             elif T_pose is None:
                 unmeasured[j] = "no pose"
-            elif half_size is None and _cut_by_border(  # a box model is cut there too
+            elif not (half_size is not None and run.detect.locate_cut) and _cut_by_border(
                     box, config.resolution, run.detect.border_px):
                 unmeasured[j] = "cut by the border"
             else:
@@ -418,7 +418,9 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                                               velocity_heading, run.heading)
                         t_belief = t_rel
                         chosen = int(np.argmax(belief))
-                        R = R + heading_spread(np.asarray(centres), belief, chosen)
+                        R = R + heading_spread(np.asarray(centres), belief, chosen) + \
+                            border_covariance(box, config.resolution, (T_pose @ T_BS[0])[:3, :3],
+                                              half_size, run.detect.border_px)
                         z = np.asarray(centres[chosen], np.float64)
                     rec["raw_pose"][j] = z
             ms["locate"][j] = 1e3 * (time.perf_counter() - c0)

@@ -66,7 +66,13 @@ class DetectStageConfig:
             :data:`CLASS_HALF_SIZE_M`, turned by the target's heading.
         border_px: a box within this many pixels of the image border is cut by it (the
             target is partly outside the image); its centre is not the target's, so it is
-            not located. Negative: locate every box.
+            not located (see ``locate_cut``). Negative: locate every box.
+        locate_cut: locate a cut box too when the class has a box model (the model's box is
+            cut at the border as well, and the border's uncertainty joins the covariance).
+            Off by default: it bridges the frames where a close target runs off the image
+            (closed loop: longest loss 0.20 s instead of 1.15 s) but those points are biased
+            (mean follow distance error 0.56 m instead of 0.48; on an unseen V2_02 flight the
+            filtered RMSE 3.0 m instead of 1.8).
     """
 
     every: int = 1
@@ -74,6 +80,7 @@ class DetectStageConfig:
     follow_class: str = "car"
     extent: float | None = None
     border_px: float = 1.0
+    locate_cut: bool = False
 
     def __post_init__(self):
         if self.every < 1:

@@ -42,7 +42,7 @@ from uavcal_jax.pipeline.run_config import RunConfig
 from uavcal_jax.track import REASONS, FilterOutput, assign_track_ids, locate_box, longest_track
 from uavcal_jax.track.filter import run_filter
 from uavcal_jax.track.heading import heading_from_velocity, heading_spread, track_heading
-from uavcal_jax.track.locate import box_centre_candidates
+from uavcal_jax.track.locate import border_covariance, box_centre_candidates
 from uavcal_jax.track.stereo import locate_box_stereo, rectify_stereo
 
 __all__ = ["LOCALISATION_MODES", "Localizer", "LocatedPoint", "TargetResult", "build_localizer",
@@ -85,7 +85,8 @@ class Localizer:
         self._T_BC = np.asarray(cam0.calibration.T_BS, np.float64)
         #: the left camera's model
         self.camera = from_calibration(cam0.calibration)
-        self._box_model = config.detect.target_half_size() is not None
+        self._locate_cut = (config.detect.locate_cut
+                            and config.detect.target_half_size() is not None)
         self._depth = sequence.depth.get("depth0")
         self._depth_index = {} if self._depth is None else {
             int(t): i for i, t in enumerate(self._depth.t_ns)}
@@ -107,10 +108,10 @@ class Localizer:
         return x1 <= margin or y1 <= margin or x2 >= w - margin or y2 >= h - margin
 
     def can_locate(self, box) -> bool:
-        """A box can be located: inside the image, or cut by its border but of a class with a
-        box model, which is cut as the detector's box is
+        """A box can be located: inside the image, or cut by its border with
+        ``detect.locate_cut`` on and a class with a box model, which is cut there as well
         (:data:`~uavcal_jax.pipeline.run_config.CLASS_HALF_SIZE_M`)."""
-        return self._box_model or not self.cut_by_border(box)
+        return self._locate_cut or not self.cut_by_border(box)
 
     def locate(self, frame: int, box, T_WB: np.ndarray | None) -> LocatedPoint:
         """The world point of ``box`` (4,) in left frame ``frame`` seen from pose ``T_WB``
@@ -239,9 +240,14 @@ def centre_on_box(times_s: np.ndarray, raw_frames: np.ndarray, front: np.ndarray
     (covariances ``located_cov`` (R, 3, 3), camera poses ``T_WC`` (R, 4, 4), boxes
     ``boxes`` (R, 4) in ``camera``'s image): the heading tracked
     from the boxes' shapes, filtered, then tracked again with the filtered velocity of the
-    frame before (the module docstring); the heading's spread is added to each covariance."""
+    frame before (the module docstring); the heading's spread, and for a box cut by the
+    image's border what the border hides (:func:`~uavcal_jax.track.locate.border_covariance`),
+    are added to each covariance."""
     centres, mismatch = centre_candidates(front, T_WC, boxes, camera, half_size, config)
     rows, t_raw = np.arange(len(raw_frames)), times_s[raw_frames]
+    located_cov = located_cov + np.stack([
+        border_covariance(b, camera.resolution, T[:3, :3], half_size, config.detect.border_px)
+        for b, T in zip(boxes, T_WC, strict=True)])
 
     def at_heading(velocity_heading):
         pick, belief = track_heading(t_raw, mismatch, velocity_heading, config.heading)

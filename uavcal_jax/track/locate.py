@@ -54,6 +54,7 @@ __all__ = [
     "CANDIDATE_HEADINGS",
     "box_centre",
     "box_centre_candidates",
+    "border_covariance",
     "depth_sigma",
     "locate_box",
     "locate_from_depth",
@@ -453,3 +454,29 @@ def box_centre(front: jax.Array, T_WC: jax.Array, half_size: jax.Array, yaw: jax
     centre = R_WC @ _fit_centre(front_C, rotation, jnp.asarray(half_size, front_C.dtype),
                                 cam, config) + p_WC
     return jnp.where(known, centre, centres[jnp.argmin(mismatch)])
+
+
+def border_covariance(box, resolution, R_WC, half_size, margin: float = 1.0) -> np.ndarray:
+    """(3, 3) m^2: what a box cut by the image's border hides of where the target's centre is.
+
+    A box model fitted to a cut box (:func:`box_centre_candidates`) could be moved along the
+    cut image axis by up to the target's largest half size without changing what the image
+    shows; that variance is added along the camera's axis (world frame) for each image axis
+    the box is cut on.
+
+    Args:
+        box: (4,) the box, pixel edges; resolution: ``(width, height)``.
+        R_WC: (3, 3) camera-to-world rotation.
+        half_size: (3,) the target's half sizes, metres.
+        margin: pixels from the border within which a box edge counts as cut.
+    """
+    x1, y1, x2, y2 = (float(v) for v in box)
+    w, h = resolution
+    R_WC = np.asarray(R_WC, np.float64)
+    variance = float(np.max(half_size)) ** 2
+    cov = np.zeros((3, 3))
+    cut = (x1 <= margin or x2 >= w - margin, y1 <= margin or y2 >= h - margin)
+    for axis in (0, 1):
+        if cut[axis]:
+            cov += variance * np.outer(R_WC[:, axis], R_WC[:, axis])
+    return cov
