@@ -50,7 +50,7 @@ examples:
 in the package; `labels`: the recording's own target labels (simulated recordings), a perfect
 detector for measuring the rest of the pipeline.
 --set keys are the fields of uavcal_jax/pipeline/run_config.py's RunConfig tree (offset_method,
-vio.*, detect.*, associate.*, locate.*, stereo.*, filter.*, follow.*, warmup_frames; the
+vio.*, detect.*, associate.*, locate.*, stereo.*, filter.*, heading.*, follow.*, warmup_frames; the
 stages' own config classes give each default and its meaning); an unknown key's error lists
 the valid ones."""
 
