@@ -158,3 +158,21 @@ def test_a_run_of_gated_measurements_reinitialises_on_the_target():
     assert np.linalg.norm(np.asarray(out.position)[24] - z[24]) < 0.2
     never = F.run_filter(t, z, R, valid, F.FilterConfig(reinit_after_gated=0))
     assert np.asarray(never.gated)[20:].all()
+
+
+def test_prediction_coasts_then_holds():
+    """Measurements of a target at 2 m/s stop at 1 s: the prediction moves on for
+    ``coast_after`` seconds, then holds, while its covariance keeps growing."""
+    t = np.arange(60) * 0.05
+    z = np.stack([2.0 * t, np.zeros_like(t), np.zeros_like(t)], axis=1)
+    R = np.tile(0.001 * np.eye(3), (60, 1, 1))
+    valid = t < 1.0
+    out = F.run_filter(t, z, R, valid, F.FilterConfig(accel_psd=1.0, coast_after=0.5))
+    x = np.asarray(out.position)[:, 0]
+    last = np.flatnonzero(valid)[-1]
+    assert x[last + 5] == pytest.approx(x[last] + 2.0 * 0.25, abs=0.05)  # still moving
+    held = t > t[last] + 0.5 + 1e-9
+    np.testing.assert_allclose(x[held], x[held][0], atol=1e-6)
+    assert x[held][0] == pytest.approx(x[last] + 2.0 * 0.5, abs=0.1)
+    var = np.asarray(out.covariance)[:, 0, 0]
+    assert np.all(np.diff(var[last:]) > 0)

@@ -16,7 +16,10 @@ prediction, ``y^T S^-1 y``, exceeds the chi-square quantile (3 degrees of freedo
 ``gate_probability`` is gated out (not used), unless ``reinit_after_gated`` measurements in a
 row were: then the track has left the target (a turn the constant-velocity model did not
 follow) rather than met outliers, and the filter re-initialises from the measurement. While no
-measurement is used the filter only predicts; ``lost_after`` seconds after the last used
+measurement is used the filter only predicts, the position moving with the velocity for at
+most ``coast_after`` seconds after the last used measurement and held after that (a car that
+left the image at a turn or a stop is not flown off to in a straight line; the covariance
+keeps growing); ``lost_after`` seconds after the last used
 measurement the target is lost: the output holds the last prediction and the next valid
 measurement re-initialises the filter (position from it, velocity zero with
 ``init_velocity_sigma``), ungated.
@@ -69,6 +72,8 @@ class FilterConfig:
         init_velocity_sigma: velocity standard deviation at (re-)initialisation, m/s.
         reinit_after_gated: this many gated measurements in a row re-initialise the filter
             from the last of them (0: never).
+        coast_after: seconds after the last used measurement during which the prediction
+            moves with the velocity; later it is held (``inf``: always moves).
     """
 
     accel_psd: float = 1.0
@@ -76,6 +81,7 @@ class FilterConfig:
     lost_after: float = 2.0
     init_velocity_sigma: float = 2.0
     reinit_after_gated: int = 5
+    coast_after: float = float("inf")
 
     def __post_init__(self):
         if self.accel_psd < 0.0:
@@ -84,6 +90,8 @@ class FilterConfig:
             raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
         if self.lost_after <= 0.0:
             raise ValueError(f"lost_after must be > 0, got {self.lost_after}")
+        if not self.coast_after >= 0.0:
+            raise ValueError(f"coast_after must be >= 0, got {self.coast_after}")
         if self.reinit_after_gated < 0:
             raise ValueError(f"reinit_after_gated must be >= 0, got {self.reinit_after_gated}")
 
@@ -147,8 +155,12 @@ def _step(config: FilterConfig, carry: _Carry, frame):
 
     # predict (only meaningful while active; lost/unseen states are held, not propagated)
     dt = jnp.maximum(t - carry.t, 0.0)
+    # the mean moves only until coast_after past the last used measurement (t_used is NaN
+    # before the first, when nothing is active)
+    t_stop = jnp.where(jnp.isnan(carry.t_used), t, carry.t_used + config.coast_after)
+    dt_move = jnp.clip(jnp.minimum(t, t_stop) - carry.t, 0.0, dt)
+    x_pred = transition(dt_move) @ carry.x
     F = transition(dt)
-    x_pred = F @ carry.x
     P_pred = F @ carry.P @ F.T + white_noise_acceleration_q(dt, config.accel_psd)
     lost_now = carry.active & (t - carry.t_used > config.lost_after)
     active = carry.active & ~lost_now

@@ -337,13 +337,25 @@ def _yaw_matrix(yaw):
                       jnp.stack([zero, zero, one])])
 
 
+def _image_radius(cam: PinholeRadtan):
+    """The largest normalised (undistorted) radius the image shows: its corners'."""
+    w, h = cam.resolution
+    corners = jnp.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]],
+                        dtype=jnp.result_type(cam.fx))
+    return jnp.max(jnp.linalg.norm(pixels_to_normalized(corners, cam), axis=-1))
+
+
 def _seen_box(centre_C, R_CT, half, cam: PinholeRadtan):
     """The image box ``(lo, hi)`` (2,) each, pixel-edge coordinates, of a box with centre
     ``centre_C`` (camera frame), box-to-camera rotation ``R_CT`` and half sizes ``half``: the
     bounding box of its projected corners (lens distortion included), cut by the image's
-    border as a detector's box is."""
+    border as a detector's box is. Corners beyond the image's largest radius are drawn in to
+    it first: a polynomial lens model folds points far outside its field of view back in."""
     corners = centre_C + (_CORNERS * half) @ R_CT.T
     xy = corners[:, :2] / jnp.maximum(corners[:, 2:], 1e-3)
+    radius = jnp.linalg.norm(xy, axis=-1, keepdims=True)
+    limit = 1.05 * _image_radius(cam)
+    xy = xy * jnp.minimum(1.0, limit / jnp.maximum(radius, 1e-12))
     uv = project_normalized(xy, cam) + 0.5  # pixel centres -> edges
     size = jnp.asarray(cam.resolution, uv.dtype)
     lo = jnp.clip(uv.min(axis=0), 0.0, size)
