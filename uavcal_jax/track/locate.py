@@ -317,8 +317,8 @@ _MODEL_SAMPLES = 8
 #: The largest relative miss (of the front point's range) of a settled :func:`box_centre` fit.
 _CENTRE_TOLERANCE = 0.01
 #: The corners of a unit box, (8, 3).
-_CORNERS = jnp.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
-                     dtype=float)
+_CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+                    dtype=float)
 
 
 def _slab_entry(origin, direction, half):
