@@ -16,7 +16,7 @@ causal as a live follower runs it:
 
 The belief's spread over the candidates' centres is the heading's share of the located
 point's covariance (:func:`heading_spread`), so the position filter weighs an ambiguous view
-less. NumPy: a few thousand frames over 16 states is microseconds of work.
+less. NumPy: 16 states cost tens of microseconds a frame.
 """
 
 from __future__ import annotations
