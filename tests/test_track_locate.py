@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from uavcal_jax.data import euroc_rig as rig
 from uavcal_jax.geometry import camera as C
+from uavcal_jax.track import box_model as BM
 from uavcal_jax.track import locate as L
 from uavcal_jax.track import stereo as S
 
@@ -280,8 +281,9 @@ def test_box_centre_recovers_a_car_centre_from_any_side(yaw, height, distance):
     front = L.locate_box(box, depth, cam, np.eye(4), T_WC, 0.0, config)
     assert bool(front.located)
     p = np.asarray(front.point)
-    known = np.asarray(L.box_centre(p, T_WC, CAR_HALF, yaw, box, cam, config))
-    shape = np.asarray(L.box_centre(p, T_WC, CAR_HALF, np.nan, box, cam, config))
+    known = np.asarray(BM.box_centre(p, T_WC, CAR_HALF, yaw, cam, config))
+    centres, mismatch = BM.box_centre_candidates(p, T_WC, CAR_HALF, box, cam, config)
+    shape = np.asarray(centres)[int(np.argmin(mismatch))]  # the best-fitting shape
     ray = (p - cam_pos) / np.linalg.norm(p - cam_pos)
     constant = p + 1.25 * ray
     assert np.linalg.norm(known - centre) < 0.12
@@ -293,7 +295,7 @@ def test_heading_tracker_resolves_the_mirror_ambiguity_with_the_velocity():
     settles the tracker on it, and it holds that heading through frames without velocity."""
     from uavcal_jax.track.heading import track_heading
 
-    grid = L.CANDIDATE_HEADINGS
+    grid = BM.CANDIDATE_HEADINGS
     true_index, mirror_index = 3, 11
     mismatch = np.full((40, grid.size), 0.05)
     mismatch[:, [true_index, mirror_index]] = 0.0
@@ -330,7 +332,7 @@ def test_box_centre_locates_a_car_cut_by_the_image_border():
     assert box[0] == 0.0  # cut by the border
     config = L.LocateConfig(quantile=0.5)
     front = np.asarray(L.locate_box(box, depth, cam, np.eye(4), T_WC, 0.0, config).point)
-    found = np.asarray(L.box_centre(front, T_WC, CAR_HALF, 0.3, box, cam, config))
+    found = np.asarray(BM.box_centre(front, T_WC, CAR_HALF, 0.3, cam, config))
     ray = (front - cam_pos) / np.linalg.norm(front - cam_pos)
     assert np.linalg.norm(found - centre) < 0.25
     assert np.linalg.norm(front + 1.25 * ray - centre) > 2 * np.linalg.norm(found - centre)
@@ -339,10 +341,10 @@ def test_box_centre_locates_a_car_cut_by_the_image_border():
 def test_border_covariance_opens_the_cut_axis_only():
     R_WC = Rotation.from_euler("zyx", [0.4, 0.1, -0.2]).as_matrix()
     half = np.array([2.1, 0.875, 0.725])
-    inside = L.border_covariance([20, 30, 100, 90], (376, 240), R_WC, half)
+    inside = BM.border_covariance([20, 30, 100, 90], (376, 240), R_WC, half)
     np.testing.assert_allclose(inside, 0.0)
-    left = L.border_covariance([0, 30, 100, 90], (376, 240), R_WC, half)
+    left = BM.border_covariance([0, 30, 100, 90], (376, 240), R_WC, half)
     np.testing.assert_allclose(left @ R_WC[:, 0], 2.1 ** 2 * R_WC[:, 0])
     np.testing.assert_allclose(left @ R_WC[:, 1], 0.0, atol=1e-12)
-    both = L.border_covariance([0, 30, 100, 240], (376, 240), R_WC, half)
+    both = BM.border_covariance([0, 30, 100, 240], (376, 240), R_WC, half)
     assert np.linalg.matrix_rank(both) == 2

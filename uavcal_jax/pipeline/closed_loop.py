@@ -34,6 +34,11 @@ is used only for its accelerometer, which is known at ``t_j``).
 
 Frames: ``Q`` the quadrotor (x forward, z up, what the drone model flies), ``B`` the IMU (the
 body frame of the VIO and of the camera extrinsics; EuRoC's mounting ``R_QB``).
+
+One module, over 450 lines: its job is one closed-loop flight, and its parts (the drone's
+IMU written as it flies, the per-frame render-pose-detect-locate-filter-follow loop, and the
+metrics over the flight, aligned to the truth) share the flight's state and its frames;
+split, each would take a dozen arguments of the others' internals.
 """
 
 from __future__ import annotations
@@ -69,6 +74,7 @@ from uavcal_jax.sim.simulate import imu_calibration
 from uavcal_jax.track import LOST, TRACKING, UNSEEN, Setpoint, follow_step, locate_box
 from uavcal_jax.track import filter as target_filter
 from uavcal_jax.track.associate import box_iou
+from uavcal_jax.track.box_model import border_covariance, box_centre_candidates
 from uavcal_jax.track.follow import wrap_angle
 from uavcal_jax.track.heading import (
     heading_from_velocity,
@@ -76,7 +82,6 @@ from uavcal_jax.track.heading import (
     heading_step,
     uniform_belief,
 )
-from uavcal_jax.track.locate import border_covariance, box_centre_candidates
 from uavcal_jax.vio.estimator import StereoVio
 from uavcal_jax.vio.run import one_blas_thread
 from uavcal_jax.vio.trajectory_metrics import ate

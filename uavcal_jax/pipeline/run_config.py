@@ -31,8 +31,8 @@ NO_OFFSET = "none"
 
 #: Half sizes, metres (along the heading, across, up), of the upright box that models a target
 #: class (by name) when ``DetectStageConfig.extent`` is ``None``: depth sees the box's front
-#: surface and :func:`~uavcal_jax.track.locate.box_centre` moves the point to its centre
-#: for the view and the heading. A mid-size car (4.2 x 1.75 x 1.45 m) and a standing adult
+#: surface and :mod:`uavcal_jax.track.box_model` moves the point to its centre for the view
+#: and the heading. A mid-size car (4.2 x 1.75 x 1.45 m) and a standing adult
 #: (0.5 x 0.34 x 1.72 m): the middle of the simulator's ranges (3.6-4.7 x 1.6-1.9 x 1.3-1.6,
 #: 0.4-0.6 x 0.28-0.4 x 1.55-1.9). Other classes: a point target (no offset).
 CLASS_HALF_SIZE_M = {"car": (2.1, 0.875, 0.725), "person": (0.25, 0.17, 0.86)}

@@ -40,9 +40,9 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.geometry.camera import PinholeRadtan, from_calibration
 from uavcal_jax.pipeline.run_config import RunConfig
 from uavcal_jax.track import REASONS, FilterOutput, assign_track_ids, locate_box, longest_track
+from uavcal_jax.track.box_model import border_covariance, box_centre_candidates
 from uavcal_jax.track.filter import run_filter
 from uavcal_jax.track.heading import heading_from_velocity, heading_spread, track_heading
-from uavcal_jax.track.locate import border_covariance, box_centre_candidates
 from uavcal_jax.track.stereo import locate_box_stereo, rectify_stereo
 
 __all__ = ["LOCALISATION_MODES", "Localizer", "LocatedPoint", "TargetResult", "build_localizer",
@@ -201,17 +201,19 @@ def _class_id(class_names, name: str) -> int:
 
 
 def filter_target(times_s: np.ndarray, raw_frames: np.ndarray, raw_points: np.ndarray,
-                  raw_cov: np.ndarray, config: RunConfig) -> tuple[FilterOutput, tuple]:
+                  raw_cov: np.ndarray, config: RunConfig, timed: bool = True
+                  ) -> tuple[FilterOutput, tuple]:
     """The filter over all ``T`` frames (times ``times_s`` (T,), seconds) with the raw
-    localisations at ``raw_frames``; returns its output (NumPy) and the two calls' times in
-    milliseconds (the first compiles, the second is the steady state)."""
+    localisations at ``raw_frames``; returns its output (NumPy) and, with ``timed``, the times
+    of two calls in milliseconds (the first compiles, the second is the steady state; without,
+    one call and no times)."""
     T = times_s.shape[0]
     z = np.zeros((T, 3))
     R = np.tile(np.eye(3), (T, 1, 1))
     valid = np.zeros(T, bool)
     z[raw_frames], R[raw_frames], valid[raw_frames] = raw_points, raw_cov, True
     ms = []
-    for _ in range(2):
+    for _ in range(2 if timed else 1):
         t0 = time.perf_counter()
         out = jax.block_until_ready(run_filter(times_s, z, R, valid, config.filter))
         ms.append(1e3 * (time.perf_counter() - t0))
@@ -224,7 +226,7 @@ def centre_candidates(front: np.ndarray, T_WC: np.ndarray, boxes: np.ndarray,
     """Front-surface points (R, 3), seen from the camera poses ``T_WC`` (R, 4, 4) in ``boxes``
     (R, 4) (pixel edges) of ``camera``: the centres
     (R, H, 3) of boxes with ``half_size`` (3,) metres at each candidate heading, and each
-    one's shape mismatch (R, H) (:func:`uavcal_jax.track.locate.box_centre_candidates`)."""
+    one's shape mismatch (R, H) (:func:`uavcal_jax.track.box_model.box_centre_candidates`)."""
     fit = jax.vmap(box_centre_candidates, in_axes=(0, 0, None, 0, None, None))
     centres, mismatch = fit(front, T_WC, np.asarray(half_size, np.float64), boxes, camera,
                             config.locate)
@@ -241,7 +243,7 @@ def centre_on_box(times_s: np.ndarray, raw_frames: np.ndarray, front: np.ndarray
     ``boxes`` (R, 4) in ``camera``'s image): the heading tracked
     from the boxes' shapes, filtered, then tracked again with the filtered velocity of the
     frame before (the module docstring); the heading's spread, and for a box cut by the
-    image's border what the border hides (:func:`~uavcal_jax.track.locate.border_covariance`),
+    image's border what the border hides (:func:`~uavcal_jax.track.box_model.border_covariance`),
     are added to each covariance."""
     centres, mismatch = centre_candidates(front, T_WC, boxes, camera, half_size, config)
     rows, t_raw = np.arange(len(raw_frames)), times_s[raw_frames]
@@ -254,7 +256,7 @@ def centre_on_box(times_s: np.ndarray, raw_frames: np.ndarray, front: np.ndarray
         return centres[rows, pick], located_cov + heading_spread(centres, belief, pick)
 
     points, cov = at_heading(np.full(len(raw_frames), np.nan))  # the shapes alone
-    first, _ = filter_target(times_s, raw_frames, points, cov, config)
+    first, _ = filter_target(times_s, raw_frames, points, cov, config, timed=False)
     heading = heading_from_velocity(first.velocity, config.heading.min_speed)
     return at_heading(np.concatenate([[np.nan], heading[:-1]])[raw_frames])  # causal
 

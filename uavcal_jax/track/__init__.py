@@ -5,8 +5,9 @@ project (NumPy, JAX, SciPy, and OpenCV for the stereo path). Modules, one job ea
 
 * :mod:`~uavcal_jax.track.locate`: a box + a depth image + the camera and the pose -> the
   target's world position with a 3x3 covariance, or "not located" with a reason
-  (:class:`LocateConfig`); for a box-shaped target, its centre from the front surface at
-  each candidate heading (``box_centre_candidates``). Jitted JAX.
+  (:class:`LocateConfig`). Jitted JAX.
+* :mod:`~uavcal_jax.track.box_model`: for a box-shaped target (a car, a person), its centre
+  from that front surface at each candidate heading, with how well the box's shape fits.
 * :mod:`~uavcal_jax.track.heading`: which candidate heading to believe over time, from the
   boxes' shapes and the target's velocity (a discrete Bayes filter, :class:`HeadingConfig`).
 * :mod:`~uavcal_jax.track.stereo`: the same from a stereo pair (``cv2.stereoRectify``, SGBM on

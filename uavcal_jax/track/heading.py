@@ -3,14 +3,14 @@
 One frame's box shape often fits two headings (mirror images about the line of sight), and a
 slow target's velocity points anywhere. Together over time they agree: a discrete Bayes
 filter (the forward pass of a hidden Markov model) over the candidate headings
-(:data:`uavcal_jax.track.locate.CANDIDATE_HEADINGS`, axial: ``h`` and ``h + pi`` are one box),
+(:data:`uavcal_jax.track.box_model.CANDIDATE_HEADINGS`, axial: ``h`` and ``h + pi`` are one box),
 causal as a live follower runs it:
 
 * motion: the heading diffuses between observations with a standard deviation that grows with
   the elapsed time, ``turn_rate * dt`` (a car turns at most about 1.2 rad/s), floored at half
   the grid's spacing;
 * the box's shape: ``exp(-mismatch / (2 shape_sigma^2))`` with ``mismatch`` the relative
-  squared corner error of :func:`~uavcal_jax.track.locate.box_centre_candidates`;
+  squared corner error of :func:`~uavcal_jax.track.box_model.box_centre_candidates`;
 * the velocity, where the target moves faster than ``min_speed``: an axial von Mises
   ``exp(kappa cos(2 (h - atan2(v_y, v_x))))``.
 
@@ -25,7 +25,7 @@ import dataclasses
 
 import numpy as np
 
-from uavcal_jax.track.locate import CANDIDATE_HEADINGS
+from uavcal_jax.track.box_model import CANDIDATE_HEADINGS
 
 __all__ = ["HeadingConfig", "heading_from_velocity", "heading_spread", "heading_step",
            "track_heading", "uniform_belief"]
@@ -99,14 +99,14 @@ def track_heading(times_s, mismatch, velocity_heading,
     Args:
         times_s: (R,) the observations' times, seconds, increasing.
         mismatch: (R, H) the box shape's mismatch per candidate heading
-            (:func:`~uavcal_jax.track.locate.box_centre_candidates`).
+            (:func:`~uavcal_jax.track.box_model.box_centre_candidates`).
         velocity_heading: (R,) the heading of the target's velocity known before each
             observation, radians, NaN where it is unknown or slow.
         config: :class:`HeadingConfig`.
 
     Returns:
         ``(chosen, beliefs)``: (R,) int, the index into
-        :data:`~uavcal_jax.track.locate.CANDIDATE_HEADINGS` of each observation's most probable
+        :data:`~uavcal_jax.track.box_model.CANDIDATE_HEADINGS` of each observation's most probable
         heading, and (R, H) the beliefs it was chosen from.
     """
     times = np.asarray(times_s, np.float64)

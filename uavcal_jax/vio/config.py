@@ -16,6 +16,9 @@ Camera-dependent values come from the recording, never from a constant: ``cost.f
 :func:`~uavcal_jax.vio.run.run_vio` and :class:`~uavcal_jax.vio.estimator.StereoVio` call).
 The pixel thresholds of the front end and the keyframe decision are instead expressed at
 :data:`NOMINAL_FOCAL_PX`, a lens-independent unit.
+
+One module, over 450 lines: one settings tree, most of its length the documentation of each
+default and the reason for it; the resolution against a recording's rig belongs beside it.
 """
 
 from __future__ import annotations
