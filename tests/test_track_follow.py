@@ -181,6 +181,40 @@ def test_association_keeps_ids_through_a_crossing_and_missed_frames():
     assert A.longest_track(ids, classes, 0, usable) == next(iter(mapping["A"]))
 
 
+def test_followed_chain_bridges_an_identity_break_and_not_another_target():
+    """An identity break as on a simulated V2_02 flight: the followed car F is missed for
+    two frames and comes back with its box jumped back (the drone turned), so far from the
+    track's constant-velocity prediction that the association starts a new track. The chain
+    goes on with F's new track (its first box overlaps F's last one), and never takes the
+    other car P's track."""
+    boxes, classes, who = [], [], []
+    for k in range(30):
+        x = 100.0 + 20 * k - 110.0 * (k >= 14)  # at 14: 50 px behind frame 11's box
+        f = [x, 100.0, x + 100.0, 160.0]
+        p = [600.0 - 5 * k, 300.0, 700.0 - 5 * k, 380.0]
+        frame, names = ([p], ["P"]) if k in (12, 13) else ([f, p], ["F", "P"])
+        boxes.append(np.array(frame))
+        classes.append(np.zeros(len(frame), np.int64))
+        who.append(names)
+    ids = A.assign_track_ids(boxes, classes)
+    f_tracks = {int(i) for frame_ids, names in zip(ids, who, strict=True)
+                for i, n in zip(frame_ids, names, strict=True) if n == "F"}
+    assert len(f_tracks) == 2  # the identity break
+    first = int(ids[0][0])
+    pick = A.followed_detections(ids, boxes, classes, first)
+    for k, names in enumerate(who):
+        if "F" in names:
+            assert pick[k] >= 0 and names[pick[k]] == "F", (k, names, pick[k])
+        else:
+            assert pick[k] == -1
+    # started from the later track, the chain runs backwards through the first
+    later = (f_tracks - {first}).pop()
+    np.testing.assert_array_equal(A.followed_detections(ids, boxes, classes, later), pick)
+    # stitching off: the chain is the chosen track only
+    alone = A.followed_detections(ids, boxes, classes, first, A.AssociateConfig(stitch_iou=1.0))
+    assert (alone[:12] >= 0).all() and (alone[12:] < 0).all()
+
+
 def test_box_iou_against_hand_values():
     iou = A.box_iou(np.array([[0.0, 0.0, 10.0, 10.0]]),
                     np.array([[5.0, 0.0, 15.0, 10.0], [20.0, 20.0, 30.0, 30.0],

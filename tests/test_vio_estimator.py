@@ -21,6 +21,7 @@ from uavcal_jax.vio import ate
 from uavcal_jax.vio.initialize import (
     gravity_aligned_rotation,
     gyro_bias_from_rotations,
+    level_keeping_heading,
     triangulate_stereo,
     yaw_of,
 )
@@ -135,6 +136,27 @@ def test_gravity_alignment_levels_and_sets_yaw():
     assert abs(yaw_of(R) - 0.3) < 1e-9
     with pytest.raises(ValueError, match="cannot level"):
         gravity_aligned_rotation(np.zeros(3))
+
+
+@pytest.mark.parametrize("body_x_up", [True, False])
+def test_relevelling_keeps_the_heading_whatever_the_body_convention(body_x_up):
+    """A re-initialisation corrects the tilt about a horizontal axis only: the world keeps its
+    heading, also for EuRoC's IMU frame (x up), where the body x axis's heading is
+    ill-defined and re-levelling at ``yaw_of`` turns the world."""
+    # EuRoC's IMU: x up, z forward; FLU: x forward, z up; both turned to heading 0.8 rad
+    mount = (Rotation.from_euler("y", -90, degrees=True) if body_x_up else Rotation.identity())
+    R_true = (Rotation.from_euler("z", 0.8) * Rotation.from_euler("x", 0.05) * mount).as_matrix()
+    tilt_error = Rotation.from_rotvec([0.12, -0.15, 0.0]).as_matrix()  # horizontal axis
+    R_ref = tilt_error @ R_true  # the estimate: right heading, 11 degrees of tilt off
+    up = R_true.T @ np.array([0.0, 0.0, 9.81])
+    R = level_keeping_heading(up, R_ref)
+    np.testing.assert_allclose(R @ up, [0.0, 0.0, 9.81], atol=1e-9)
+    np.testing.assert_allclose(R, R_true, atol=1e-9)  # the tilt undone, the heading kept
+    turned = Rotation.from_matrix(gravity_aligned_rotation(up, yaw_of(R_ref)) @ R_true.T)
+    if body_x_up:  # what keeping the body x axis's heading does there
+        assert turned.magnitude() > np.radians(5.0)
+    with pytest.raises(ValueError, match="cannot level"):
+        level_keeping_heading(np.zeros(3), R_ref)
 
 
 def test_gyro_bias_from_rotations_recovers_a_bias():

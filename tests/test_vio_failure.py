@@ -72,12 +72,13 @@ def stretch():
 def test_moving_start_recovers_tilt_and_velocity(stretch):
     frames, rows = stretch
     R_true, _, v_true = _pose((FRAMES - 1) * DT)
-    yaw = float(np.arctan2(R_true[1, 0], R_true[0, 0]))
     init = initialize_moving([f for f, _ in frames], [d for _, d in frames], rows,
-                             EUROC_CAM0_T_BS, yaw)
+                             EUROC_CAM0_T_BS, R_true)
     assert init is not None
     tilt = np.degrees(np.arccos(np.clip(init.rotation[2] @ R_true[2], -1, 1)))
     assert tilt < 0.5
+    # with the true rotation as the reference, its heading is kept: the whole rotation
+    assert np.degrees(Rotation.from_matrix(init.rotation @ R_true.T).magnitude()) < 0.5
     np.testing.assert_allclose(init.velocity, v_true, atol=0.05)
     assert init.gravity_norm == pytest.approx(9.81, abs=0.2)
     # what levelling by the accelerometer would have done here

@@ -6,7 +6,9 @@ and the detector have run over a recording:
 1. the detections of every detected frame are associated into tracks
    (:func:`uavcal_jax.track.associate.assign_track_ids`) and the longest track of the class
    to follow is the target (:func:`~uavcal_jax.track.associate.longest_track`), its length
-   counted in boxes inside the image (a box cut by the border cannot be located);
+   counted in boxes inside the image (a box cut by the border cannot be located), continued
+   through identity breaks by the tracks that overlap its ends
+   (:func:`~uavcal_jax.track.associate.followed_detections`);
 2. each of its boxes is located (:class:`Localizer`): from the depth image (``depth0``) when
    the recording has one, else from the stereo pair's disparity (``cam1``), else not at all,
    with the reason; a box cut by the image border, or a frame without a VIO pose, is not
@@ -39,7 +41,14 @@ from uavcal_jax.detect.predict import ImageDetections
 from uavcal_jax.errors import DataError
 from uavcal_jax.geometry.camera import PinholeRadtan, from_calibration
 from uavcal_jax.pipeline.run_config import RunConfig
-from uavcal_jax.track import REASONS, FilterOutput, assign_track_ids, locate_box, longest_track
+from uavcal_jax.track import (
+    REASONS,
+    FilterOutput,
+    assign_track_ids,
+    followed_detections,
+    locate_box,
+    longest_track,
+)
 from uavcal_jax.track.box_model import border_covariance, box_centre_candidates
 from uavcal_jax.track.filter import run_filter
 from uavcal_jax.track.heading import heading_from_velocity, heading_spread, track_heading
@@ -296,11 +305,13 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     raw_frames, points, covs, views, seen_boxes, locate_ms = [], [], [], [], [], []
     not_located: collections.Counter = collections.Counter()
     if chosen is not None:
-        for k in ran:
-            hit = np.flatnonzero(track_ids[k] == chosen)
-            if hit.size == 0:
+        pick = followed_detections(ids_ran, [detections[k].boxes for k in ran],
+                                   [detections[k].classes for k in ran], chosen,
+                                   config.associate)
+        for k, i in zip(ran, pick, strict=True):
+            if i < 0:
                 continue
-            boxes[k], scores[k] = detections[k].boxes[hit[0]], detections[k].scores[hit[0]]
+            boxes[k], scores[k] = detections[k].boxes[i], detections[k].scores[i]
             t0 = time.perf_counter()
             located = localizer.locate(k, boxes[k], poses[k])
             locate_ms.append(1e3 * (time.perf_counter() - t0))

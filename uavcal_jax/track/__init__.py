@@ -16,12 +16,18 @@ project (NumPy, JAX, SciPy, and OpenCV for the stereo path). Modules, one job ea
   (continuous white-noise acceleration, chi-square gating, predict while unseen, lost and
   re-initialised), one ``lax.scan`` over frames (:class:`FilterConfig`).
 * :mod:`~uavcal_jax.track.associate`: detections -> track ids (Hungarian matching on IoU with
-  constant-velocity boxes), and the longest track of a class (NumPy).
+  constant-velocity boxes), the longest track of a class, and the chain of tracks that
+  follows one target through identity breaks (NumPy).
 * :mod:`~uavcal_jax.track.follow`: follow set-points at a stand-off distance and height,
   facing the target, rate-limited (:class:`FollowConfig`). Jitted JAX.
 """
 
-from uavcal_jax.track.associate import AssociateConfig, assign_track_ids, longest_track
+from uavcal_jax.track.associate import (
+    AssociateConfig,
+    assign_track_ids,
+    followed_detections,
+    longest_track,
+)
 from uavcal_jax.track.filter import (
     LOST,
     PREDICTING,
@@ -54,6 +60,7 @@ __all__ = [
     "assign_track_ids",
     "follow_setpoints",
     "follow_step",
+    "followed_detections",
     "locate_box",
     "longest_track",
     "run_filter",

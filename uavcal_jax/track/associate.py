@@ -6,6 +6,13 @@ their ids); detections are matched to the predictions of the same class by the H
 assignment on IoU (``scipy.optimize.linear_sum_assignment``), pairs below ``min_iou`` are not
 matched. Unmatched detections start new tracks; a track unmatched for more than
 ``max_missed`` frames ends. Boxes are ``(x1, y1, x2, y2)`` pixels.
+
+The target followed is a chain of tracks (:func:`followed_detections`): a track's identity
+breaks where the detector merges two overlapping targets into one box and splits them again
+(on a simulated V2_02 flight a passing car took the followed car's box for 0.2 s, and its
+track ended with the car in full view for 1.5 s more). The chain goes on with the track of
+the same class whose box, within ``max_missed`` frames after the chain's last one, overlaps
+that last box by ``stitch_iou`` (and backwards the same way).
 """
 
 from __future__ import annotations
@@ -16,7 +23,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["AssociateConfig", "assign_track_ids", "box_iou", "longest_track"]
+__all__ = ["AssociateConfig", "assign_track_ids", "box_iou", "followed_detections",
+           "longest_track"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,17 +33,23 @@ class AssociateConfig:
 
     Attributes:
         min_iou: the least IoU between a track's predicted box and a detection to match them.
-        max_missed: frames a track may go unmatched before it ends (predicted meanwhile).
+        max_missed: frames a track may go unmatched before it ends (predicted meanwhile);
+            also the longest gap a chain of tracks bridges (:func:`followed_detections`).
+        stitch_iou: the least IoU between a chain's last box and the box that continues it
+            (1: never stitch).
     """
 
     min_iou: float = 0.2
     max_missed: int = 5
+    stitch_iou: float = 0.3
 
     def __post_init__(self):
         if not 0.0 <= self.min_iou < 1.0:
             raise ValueError(f"min_iou must be in [0, 1), got {self.min_iou}")
         if self.max_missed < 0:
             raise ValueError(f"max_missed must be >= 0, got {self.max_missed}")
+        if not 0.0 < self.stitch_iou <= 1.0:
+            raise ValueError(f"stitch_iou must be in (0, 1], got {self.stitch_iou}")
 
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -123,3 +137,66 @@ def longest_track(track_ids: Sequence[np.ndarray], class_ids: Sequence[np.ndarra
         return None
     counts = np.bincount(ids)
     return int(np.argmax(counts))
+
+
+def followed_detections(track_ids: Sequence[np.ndarray], boxes: Sequence[np.ndarray],
+                        class_ids: Sequence[np.ndarray], chosen: int,
+                        config: AssociateConfig = AssociateConfig()) -> np.ndarray:
+    """Per frame, the index of the followed target's detection (``-1``: none): track
+    ``chosen`` (e.g. :func:`longest_track`), continued forwards and backwards by other tracks
+    of its class (the module docstring).
+
+    Args:
+        track_ids: per frame, (N_k,) track ids (:func:`assign_track_ids`).
+        boxes: per frame, (N_k, 4) the detections' boxes.
+        class_ids: per frame, (N_k,) their class ids.
+        chosen: the track the chain starts from.
+        config: :class:`AssociateConfig` (``max_missed``, ``stitch_iou``).
+
+    Returns:
+        (T,) int detection indices.
+    """
+    T = len(track_ids)
+    pick = np.full(T, -1, np.int64)
+    ids = [np.asarray(t, np.int64).reshape(-1) for t in track_ids]
+    boxes = [np.asarray(b, np.float64).reshape(-1, 4) for b in boxes]
+    classes = [np.asarray(c, np.int64).reshape(-1) for c in class_ids]
+    frames = [k for k in range(T) if np.any(ids[k] == chosen)]
+    if not frames:
+        return pick
+    class_id = int(classes[frames[0]][np.flatnonzero(ids[frames[0]] == chosen)[0]])
+    used = {chosen}
+
+    def take(track: int, ks) -> int | None:
+        """Mark ``track``'s detections over frames ``ks`` (in order, while unmarked); the
+        last frame marked."""
+        last = None
+        for k in ks:
+            hit = np.flatnonzero(ids[k] == track)
+            if hit.size and pick[k] < 0:
+                pick[k], last = hit[0], k
+        return last
+
+    take(chosen, frames)
+    for step in (1, -1):
+        end = frames[-1] if step > 0 else frames[0]
+        while end is not None:
+            ref = boxes[end][pick[end]][None]
+            found = None
+            for k in range(end + step, end + step * (config.max_missed + 2), step):
+                if not 0 <= k < T:
+                    break
+                same = (classes[k] == class_id) & ~np.isin(ids[k], list(used))
+                if not same.any():
+                    continue
+                iou = np.where(same, box_iou(ref, boxes[k])[0], 0.0)
+                if iou.max() >= config.stitch_iou:
+                    found = (k, int(ids[k][np.argmax(iou)]))
+                    break
+            if found is None:
+                break
+            k, track = found
+            used.add(track)
+            later = range(k, T) if step > 0 else range(k, -1, -1)
+            end = take(track, later)
+    return pick

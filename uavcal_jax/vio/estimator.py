@@ -48,7 +48,7 @@ from uavcal_jax.vio.failure import (
 )
 from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures
 from uavcal_jax.vio.imu_slice import IMU_GAP_PERIODS, ImuGap, ImuStream
-from uavcal_jax.vio.initialize import gravity_aligned_rotation, yaw_of
+from uavcal_jax.vio.initialize import gravity_aligned_rotation
 from uavcal_jax.vio.keyframes import body_to_camera_rotation, keyframe_decision
 from uavcal_jax.vio.motion_init import initialize_moving
 from uavcal_jax.vio.sliding_window import SlidingWindow
@@ -320,7 +320,7 @@ class StereoVio:
     def _align(self, ref: BodyState) -> BodyState | None:
         """The state at the newest buffered frame from the last ``init_frames`` frames' stereo
         odometry and IMU (:func:`~uavcal_jax.vio.motion_init.initialize_moving`): aligned
-        gravity and velocity, ``ref``'s position and yaw, zero biases (the window estimates
+        gravity and velocity, ``ref``'s position and heading, zero biases (the window estimates
         them; after a failure the old ones are suspect). ``None`` while the frames are too
         few or do not align (the oldest is then dropped). Counts the try."""
         cfg = self.config
@@ -330,7 +330,7 @@ class StereoVio:
             return None
         rows = [(b[3].dt, b[3].gyro, b[3].accel) for b in buf[1:]]
         init = initialize_moving([b[1] for b in buf], [b[2] for b in buf], rows, self.T_BC0,
-                                 yaw_of(ref.rotation))
+                                 ref.rotation)
         if init is None:
             del buf[0]
             return None

@@ -19,6 +19,7 @@ from uavcal_jax.vio.window import FRAME_DIM, Keyframes, Prior
 __all__ = [
     "gauge_prior",
     "gravity_aligned_rotation",
+    "level_keeping_heading",
     "gyro_bias_from_relative_rotations",
     "gyro_bias_from_rotations",
     "rotation_residuals",
@@ -43,6 +44,30 @@ def gravity_aligned_rotation(accel_mean: np.ndarray, yaw: float = 0.0) -> np.nda
     R, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), (a / n)[None])
     R = R.as_matrix()
     return Rotation.from_euler("z", yaw - yaw_of(R)).as_matrix() @ R
+
+
+def level_keeping_heading(accel_mean: np.ndarray, R_ref: np.ndarray) -> np.ndarray:
+    """Body-to-world rotation (3, 3) whose body measurement of "up" ``accel_mean`` (3,) maps to
+    world ``+z``, nearest ``R_ref`` (3, 3): ``R_ref`` turned by the smallest world rotation,
+    about a horizontal axis, that takes ``R_ref @ up`` to ``+z``. So the heading about world
+    z is ``R_ref``'s whatever the body convention: a re-initialisation keeps the world frame.
+
+    Why not :func:`yaw_of` and :func:`gravity_aligned_rotation`: the heading of the body's x
+    axis is ill-defined where that axis is near vertical, as EuRoC's IMU frame has it (x
+    up). There, re-levelling at ``yaw_of(R_ref)`` turned the world by 15-21 degrees per
+    re-initialisation on a simulated V2_02 flight, and a target 8 m away moved by 3-4 m.
+
+    Raises:
+        ValueError: ``accel_mean`` is not finite or nearly zero.
+    """
+    a = np.asarray(accel_mean, np.float64).reshape(3)
+    n = float(np.linalg.norm(a))
+    if not np.isfinite(n) or n < 1.0:
+        raise ValueError(f"cannot level from an accelerometer reading of norm {n:.3g} m/s^2")
+    R_ref = np.asarray(R_ref, np.float64)
+    up_world = R_ref @ (a / n)
+    correction, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), up_world[None])
+    return correction.as_matrix() @ R_ref
 
 
 def yaw_of(R_WB: np.ndarray) -> float:

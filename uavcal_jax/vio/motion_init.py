@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from uavcal_jax.geometry.frames import GRAVITY_W
 from uavcal_jax.vio.frontend import FrameFeatures
-from uavcal_jax.vio.initialize import gravity_aligned_rotation
+from uavcal_jax.vio.initialize import gravity_aligned_rotation, level_keeping_heading
 
 __all__ = ["MotionInit", "align_gravity_velocity", "imu_deltas", "initialize_moving",
            "stereo_odometry"]
@@ -52,7 +52,7 @@ class MotionInit:
     """The outcome of :func:`initialize_moving` at the stretch's last frame.
 
     Attributes:
-        rotation: (3, 3) body-to-world, gravity-aligned (yaw as asked).
+        rotation: (3, 3) body-to-world, gravity-aligned (heading as asked).
         velocity: (3,) m/s, world.
         gravity_norm: m/s^2, the unconstrained solve's ``|g|`` (a check on the odometry).
         residual_rms: the fixed-gravity solve's weighted residual RMS (sigmas).
@@ -163,8 +163,8 @@ def align_gravity_velocity(R: np.ndarray, p: np.ndarray, alpha: np.ndarray, beta
 
 def initialize_moving(features: list[FrameFeatures], depths: list[tuple[np.ndarray, np.ndarray]],
                       imu_rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                      T_BC0: np.ndarray, yaw: float = 0.0, max_gravity_error: float = 1.0
-                      ) -> MotionInit | None:
+                      T_BC0: np.ndarray, reference: np.ndarray | None = None,
+                      max_gravity_error: float = 1.0) -> MotionInit | None:
     """The body's gravity-aligned rotation and velocity at the last of ``features``' frames.
 
     Args:
@@ -172,7 +172,9 @@ def initialize_moving(features: list[FrameFeatures], depths: list[tuple[np.ndarr
             (:func:`stereo_odometry`).
         imu_rows: K-1 intervals' raw ``(dt, gyro, accel)`` samples between the frames.
         T_BC0: (4, 4) left camera to body.
-        yaw: rad, the yaw given to the result (about world z).
+        reference: (3, 3) body-to-world rotation at the last frame whose heading the result
+            keeps (:func:`~uavcal_jax.vio.initialize.level_keeping_heading`: the current
+            estimate, so a re-initialisation does not turn the world); ``None``: yaw 0.
         max_gravity_error: m/s^2; a free solve whose ``|g|`` is further than this from
             ``GRAVITY_NORM`` means the odometry is off: ``None``.
 
@@ -195,6 +197,8 @@ def initialize_moving(features: list[FrameFeatures], depths: list[tuple[np.ndarr
         return None
     R_last = T_b[-1, :3, :3]
     # a body at rest would measure -g (its specific force points up): the levelling's input
-    R_WB = gravity_aligned_rotation(-(R_last.T @ g), yaw)
+    up = -(R_last.T @ g)
+    R_WB = (gravity_aligned_rotation(up) if reference is None
+            else level_keeping_heading(up, reference))
     v_world = R_WB @ R_last.T @ v[-1]
     return MotionInit(R_WB, v_world, g_norm, rms)
