@@ -37,6 +37,14 @@ and dtypes :func:`uavcal_jax.calib.data.gather` produces (``frames (B, T, 180, 3
   line, and ``peer_step_over_ours`` / ``peer_window_over_ours`` (above 1: ours is faster).
   ``null`` with ``peer_error`` when the interpreter is missing or the run fails.
 
+``motion`` (issue 20's motion tokens, :mod:`_bench_motion`): per preset, ``motion_model``
+gives the one-window time and the 60 s sequence's window predictions (from frame tokens)
+with ``model.motion_tokens`` and the ``rotation_ls`` closed form beside the same model
+without them (``window_extra_ms``, ``sequence_extra_s``); once, ``motion_front_end`` gives
+the front end's frame-to-frame rotations per 752x480 frame on the real V1_01 slice and their
+cost over a 60 s sequence (computed once per recording and cached; ``--no-motion`` skips
+both).
+
 ``seeds`` (small preset, run after both presets):
 :func:`~uavcal_jax.calib.train.train_step_seeds` on K = 8 stacked states against the small
 preset's :func:`~uavcal_jax.calib.train.train_step` on one; ``per_seed_ratio`` is
@@ -93,6 +101,7 @@ from _bench import (  # the script's folder is first on sys.path
     time_compile,
     time_once,
 )
+from _bench_motion import bench_front_end, bench_motion_model
 
 from uavcal_jax import allocator
 from uavcal_jax.argtypes import positive_int, print_json
@@ -111,6 +120,8 @@ from uavcal_jax.data.windows import WindowConfig
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_PEER_PYTHON = REPO.parent / "peer-venv" / "bin" / "python"
 DEFAULT_PEER_SCRIPT = REPO.parent / "shared" / "tools" / "peer_calibrator_torch.py"
+#: The real stereo slice the front end's rotations are timed on.
+MICRO = REPO.parent / "shared" / "data" / "euroc_v101_micro"
 
 # (batch, frames per 10 s window, d_model); heads, layers and patch stay the defaults.
 PRESETS = {"small": (4, 50, 128), "paper": (16, 200, 256)}
@@ -399,6 +410,15 @@ def bench_preset(name: str, args, rng: np.random.Generator, quiet: bool) -> dict
     _progress(quiet, f"[{name}] 60 s sequence ...")
     out["sequence"] = bench_sequence(model, variables, window_fn, rng, per_window, hw,
                                      repeats)
+    if not args.no_motion:
+        _progress(quiet, f"[{name}] motion tokens ...")
+        wc = WindowConfig()
+        rate = per_window / wc.duration
+        n_frames = int(round(SEQUENCE_S * rate))
+        index = sequence_windows(n_frames, per_window, int(round(wc.stride * rate)))
+        out["motion_model"] = bench_motion_model(
+            config, window, (n_frames, index), synthetic_imu(rng, index.shape), rng,
+            args.window_repeats)
     del state, window_fn
     batch = synthetic_batch(rng, batch_size, per_window, hw)
     _progress(quiet, f"[{name}] training step ...")
@@ -490,6 +510,8 @@ def main(argv=None) -> int:
                     help="interpreter with torch for the peer [default: ../peer-venv]")
     ap.add_argument("--peer-script", type=Path, default=DEFAULT_PEER_SCRIPT)
     ap.add_argument("--no-peer", action="store_true", help="do not run the PyTorch peer")
+    ap.add_argument("--no-motion", action="store_true",
+                    help="skip the motion tokens' cost (front end and model)")
     ap.add_argument("--json-only", action="store_true",
                     help="print only the JSON line (no progress, no table)")
     args = ap.parse_args(argv)
@@ -521,6 +543,9 @@ def main(argv=None) -> int:
                         synthetic_batch(rng, batch_size, per_window, (h, w)), SEEDS_K,
                         args.repeats, 2, presets["small"]["train_step_s"])
     seeds["peak_rss_mib_after"] = _peak_rss_mib()
+    if not args.no_motion:
+        _progress(args.json_only, "front end's rotations on the real slice ...")
+        summary["motion_front_end"] = bench_front_end(MICRO, SEQUENCE_S)
     main_name = names[-1]
     top = presets[main_name]
     summary.update({
@@ -534,6 +559,7 @@ def main(argv=None) -> int:
         "peer_same_allocator_step_over_ours": top["peer_same_allocator_step_over_ours"],
         "peer_same_allocator_window_over_ours": top["peer_same_allocator_window_over_ours"],
         "seeds_per_seed_ratio": seeds["per_seed_ratio"],
+        "motion_window_ms": top.get("motion_model", {}).get("motion", {}).get("window_ms"),
         "peak_rss_mib": _peak_rss_mib(),
         "load_avg_1min": [load_before, os.getloadavg()[0]],
         "presets": presets, "seeds": seeds,

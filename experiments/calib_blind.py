@@ -23,6 +23,7 @@ Usage::
 
     python experiments/calib_blind.py                          # 3 flights + hybrid, ~30 min
     python experiments/calib_blind.py --flights MH_04_difficult --duration 20 --no-hybrid
+    python experiments/calib_blind.py --checkpoint imu-only=runs/imu_only   # a reference row
 
 Writes ``OUT/table.md`` and ``OUT/results.json``; the last stdout line is one JSON object.
 """
@@ -38,7 +39,11 @@ import numpy as np
 from _calib_common import ROOT, SHARED_DATA  # the script's folder is first on sys.path
 
 from uavcal_jax.calib.config import InjectionConfig
-from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD, method_names
+from uavcal_jax.pipeline.offset_estimators import (
+    DEFAULT_METHOD,
+    configure_method,
+    method_names,
+)
 from uavcal_jax.pipeline.offset_scores import NO_CORRECTION, pooled_scores, score_recordings
 from uavcal_jax.sim.cache import cached_simulation, config_tag
 from uavcal_jax.sim.config import SimConfig
@@ -76,6 +81,25 @@ def _hybrid(args) -> Path:
     if not (folder / "sim_config.json").is_file():
         simulate_hybrid(MICRO, folder, config, overwrite=True, progress=not args.quiet)
     return folder
+
+
+def _named_run(text: str) -> tuple[str, Path]:
+    name, sep, run = text.partition("=")
+    if not sep or not name or not run:
+        raise SystemExit(f"--checkpoint wants NAME=RUN, got {text!r}")
+    return name, Path(run)
+
+
+def _score(recordings: list[Path], methods: list[str], extra: dict[str, Path], args
+           ) -> list[dict]:
+    """``score_recordings`` of ``methods``, then of the transformer method with each
+    ``extra`` run, its rows named after it."""
+    rows = score_recordings(recordings, methods, progress=not args.quiet)
+    for name, run in extra.items():
+        options = {"transformer": configure_method("transformer", checkpoint=run)}
+        rows += [{**r, "method": name} for r in score_recordings(
+            recordings, ["transformer"], options=options, progress=not args.quiet)]
+    return rows
 
 
 def _fmt(v) -> str:
@@ -123,6 +147,12 @@ def main() -> None:
     ap.add_argument("--methods", type=lambda s: [m for m in s.split(",") if m],
                     default=None, help=f"comma-separated methods [default: all: "
                     f"{', '.join(method_names())}; {DEFAULT_METHOD} is the default one]")
+    ap.add_argument("--checkpoint", action="append", default=[], metavar="NAME=RUN",
+                    help="also score the transformer method with the trained run RUN, as row "
+                         "NAME (repeatable); e.g. the IMU-only reference: "
+                         "imu-only=RUN from calib_default_weights.py --set "
+                         "model.use_video=false model.motion_tokens=false "
+                         "model.closed_form=none window.rotations=none")
     ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "calib_cache")
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "out" / "calib_blind")
     ap.add_argument("--quiet", action="store_true")
@@ -130,12 +160,13 @@ def main() -> None:
     methods = args.methods or list(method_names())
     args.out.mkdir(parents=True, exist_ok=True)
 
+    extra = dict(_named_run(text) for text in args.checkpoint)
     flights = _flights(args)
-    rows = score_recordings(flights, methods, progress=not args.quiet)
+    rows = _score(flights, methods, extra, args)
     pooled = pooled_scores(rows)
     hybrid_rows = []
     if args.hybrid and MICRO.is_dir():
-        hybrid_rows = score_recordings([_hybrid(args)], methods, progress=not args.quiet)
+        hybrid_rows = _score([_hybrid(args)], methods, extra, args)
     table = _table(pooled, hybrid_rows, args)
     (args.out / "table.md").write_text(table)
     result = {"flights": [str(f) for f in flights], "methods": methods, "rows": rows,

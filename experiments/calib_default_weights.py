@@ -34,6 +34,7 @@ from uavcal_jax.calib.data import load_windows
 from uavcal_jax.calib.loop import export_weights, fit
 from uavcal_jax.calib.presets import PRESETS, resolve_configs
 from uavcal_jax.calib.pretrained import DEFAULT_WEIGHTS
+from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
 from uavcal_jax.sim.training_sets import RENDER_RESOLUTION, SimSetConfig, simulated_set
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,6 +59,10 @@ def main() -> None:
     ap.add_argument("--run", type=Path, default=ROOT / "experiments" / "out" / "calib_default")
     ap.add_argument("--install", action="store_true",
                     help=f"copy the best checkpoint to {DEFAULT_WEIGHTS}")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="override the preset (e.g. the IMU-only reference of calib_blind.py: "
+                         "model.use_video=false model.motion_tokens=false "
+                         "model.closed_form=none window.rotations=none)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args()
     t0 = time.perf_counter()
@@ -66,16 +71,17 @@ def main() -> None:
                                          resolution=RENDER_RESOLUTION, seed=FLIGHT_SEED),
                             args.cache, progress=not args.quiet)
     t_sim = time.perf_counter() - t0
-    run = resolve_configs(preset=PRESET, epochs=args.epochs)
+    run = resolve_configs(args.set, preset=PRESET, epochs=args.epochs)
     config, loop, window = run.calib, run.loop, run.window
     # whole flights held out (overlapping windows of one flight share frames: a split over
     # windows would validate on frames it trained on)
-    parts = load_windows(folders, window)
+    parts = load_windows(folders, window, rotation_source=visual_rotation_source)
     n_val = max(1, round(loop.val_fraction * len(parts)))
     train, val = parts[:-n_val], parts[-n_val:]
     shutil.rmtree(args.run, ignore_errors=True)
     inputs = {"action": "experiments/calib_default_weights.py", "preset": PRESET,
-              "flights": args.flights, "duration": args.duration, "flight_seed": FLIGHT_SEED}
+              "flights": args.flights, "duration": args.duration, "flight_seed": FLIGHT_SEED,
+              "set": args.set}
     res = fit(config, train, val, args.run, loop=loop, progress=not args.quiet,
               inputs=inputs).summary
     best = res["best"]
@@ -88,7 +94,8 @@ def main() -> None:
                "window_mean_offset_rmse": best.get("window_mean_offset_rmse"),
                "simulate_s": round(t_sim, 1), "wall_s": round(time.perf_counter() - t0, 1),
                "command": "python experiments/calib_default_weights.py " + " ".join(
-                   f"--{k} {getattr(args, k)}" for k in ("flights", "duration", "epochs"))}
+                   f"--{k} {getattr(args, k)}" for k in ("flights", "duration", "epochs"))
+               + (" --set " + " ".join(args.set) if args.set else "")}
     if args.install:
         target = export_weights(args.run, DEFAULT_WEIGHTS, train)
         summary.update(installed=str(target), installed_bytes=_size_bytes(target))

@@ -4,7 +4,10 @@ tokens and the ``rotation_ls`` closed form, and a training step with them."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -248,3 +251,27 @@ def test_bad_motion_settings_are_refused(turn):
         gather([plain], np.arange(1), CONFIG.model, "gyro")
     with pytest.raises(DataError, match="rotation_source"):
         load_windows(["/nonexistent"], WindowConfig(rotations="visual"))
+
+
+def test_correction_scale_shrinks_the_learned_correction_on_the_closed_form_channels(
+        parallel, state):
+    """The head's output adds ``correction_scale * offset_std * y`` on the gyro channels
+    that ``rotation_ls`` estimates and ``offset_std * y`` on the accelerometer's."""
+    _, batch = parallel
+    motion = {k: batch[k] for k in ("gyro_seq", "dt_seq", "rot_cam", "rot_mask")}
+    variables = state.variables()
+    zero = np.asarray(jax.jit(Calibrator(CONFIG.model).apply)(
+        variables, None, batch["imu"], batch["mask"], motion))
+    params = jax.tree_util.tree_map_with_path(
+        lambda path, v: jnp.ones_like(v) if "head" in jax.tree_util.keystr(path)
+        and "bias" in jax.tree_util.keystr(path) else v, variables["params"])
+    shifted = {**variables, "params": params}
+    std = np.asarray(variables["normalization"]["offset_std"])
+    for scale in (1.0, 0.05):
+        model = Calibrator(dataclasses.replace(CONFIG.model, correction_scale=scale))
+        pred = np.asarray(jax.jit(model.apply)(shifted, None, batch["imu"], batch["mask"],
+                                               motion))
+        np.testing.assert_allclose(pred - zero, np.broadcast_to(
+            std * np.array([scale] * 3 + [1.0] * 3), pred.shape), rtol=1e-4, atol=1e-7)
+    with pytest.raises(ValueError, match="correction_scale"):
+        ModelConfig(correction_scale=0.0)

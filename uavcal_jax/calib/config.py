@@ -133,6 +133,13 @@ class ModelConfig:
             ``window.rotations``); ``r_k ~ -(gyro bias + offset)``. Needs windows cut with
             ``window.rotations`` other than ``"none"``; the gyro is taken as the first three
             IMU channels (a 3-channel model must be a gyro model).
+        correction_scale: the unit of the learned correction on the channels a closed form
+            estimates (the gyro under ``rotation_ls``, every channel under
+            ``window_mean``), as a fraction of the offset's standard deviation: the head's
+            output ``y`` adds ``correction_scale * offset_std * y`` there. The rotation
+            residuals' least squares is already within about 1e-3 rad/s of the gyro error,
+            so a correction in the offset's own units (1.0) lets training noise undo it; the
+            shipped weights use 0.05. Channels without a closed form keep the full unit.
     """
 
     d_model: int = 256
@@ -154,6 +161,7 @@ class ModelConfig:
     frame_encoder_dtype: str = "float32"
     closed_form: str = "none"
     motion_tokens: bool = False
+    correction_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.d_model <= 0 or self.heads <= 0 or self.d_model % self.heads:
@@ -181,6 +189,8 @@ class ModelConfig:
         if self.closed_form == "rotation_ls" and not self.motion_tokens:
             raise ValueError("closed_form='rotation_ls' needs motion_tokens (the rotation "
                              "residuals it solves from)")
+        if not self.correction_scale > 0:
+            raise ValueError(f"correction_scale must be > 0, got {self.correction_scale}")
         if self.frame_encoder_dtype not in FRAME_ENCODER_DTYPES:
             raise ValueError(f"frame_encoder_dtype must be one of {FRAME_ENCODER_DTYPES}, "
                              f"got {self.frame_encoder_dtype!r}")

@@ -336,8 +336,16 @@ class Calibrator(nn.Module):
             tokens = tokens + self.motion_tokens((-r - m) / s, valid)
         out = self.noise_predictor(tokens, mask, deterministic=deterministic)
         if c.standardize:
-            out = self._closed_form(raw, mask, norm, residual) + norm["offset_std"] * out
+            out = (self._closed_form(raw, mask, norm, residual)
+                   + norm["offset_std"] * self._correction_unit(out.shape[-1]) * out)
         return out
+
+    def _correction_unit(self, channels: int) -> jax.Array:
+        """``(C,)`` the head's unit per channel, in offset standard deviations:
+        ``correction_scale`` on the channels the closed form estimates, 1 elsewhere."""
+        c = self.config
+        covered = {"none": 0, "window_mean": channels, "rotation_ls": 3}[c.closed_form]
+        return jnp.where(jnp.arange(channels) < covered, c.correction_scale, 1.0).astype(F32)
 
     def _closed_form(self, imu, mask, norm, residual=None) -> jax.Array:
         """``(B, C)`` the estimate the standardised head corrects (``closed_form``): the
