@@ -383,6 +383,21 @@ def test_pure_rotation_is_compensated_and_not_a_keyframe():
     assert comp.n_common == comp.n_tracked == len(ids)
 
 
+def test_a_turn_past_max_rotation_is_a_keyframe_without_parallax():
+    """A turn on the spot: no compensated parallax, but past ``max_rotation_deg`` (10) the
+    frame is a keyframe, so the window keeps up with a view that sweeps past."""
+    pts_kf, ids = _scene(seed=4)
+    mask = np.ones(len(ids), bool)
+    for degrees, expect in ((8.0, ""), (12.0, "rotation")):
+        R_kf_cur = _rotation([0.1, 1.0, 0.2], np.radians(degrees))
+        d = keyframe_decision(ids, _normalised(pts_kf), ids, _normalised(pts_kf @ R_kf_cur),
+                              mask, R_kf_cur)
+        assert d.reason == expect and d.is_keyframe is bool(expect) and d.parallax_px < 1e-9
+    loose = KeyframeConfig(max_rotation_deg=15.0)
+    assert not keyframe_decision(ids, _normalised(pts_kf), ids, _normalised(pts_kf @ R_kf_cur),
+                                 mask, R_kf_cur, loose).is_keyframe
+
+
 def test_rotation_from_the_gyro_in_the_body_frame():
     pts_kf_cam, ids = _scene(seed=1)
     R_BC = _rotation([1.0, 0.2, 0.4], 1.9)

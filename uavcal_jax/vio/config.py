@@ -195,17 +195,26 @@ class KeyframeConfig:
         min_tracked: a frame with fewer valid features than this is a keyframe (VINS: 20).
         min_common: a frame sharing fewer features than this with the last keyframe is a
             keyframe (VINS' ``long_track_num < 40``).
+        max_rotation_deg: a frame turned more than this from the last keyframe (by the gyro)
+            is a keyframe. A turn on the spot has no compensated parallax, so VINS' rules
+            give a keyframe only every ``max_keyframe_interval_s`` while the view sweeps
+            past: on the demo's flight (seed 9, 0.9 rad/s for 2 s) the window then spanned
+            5 s, its cost grew tenfold and the outlier check reset it (ATE 0.13 m); with
+            10 degrees, no reset (ATE 0.01 m).
     """
 
     min_parallax_px: float = 10.0
     min_tracked: int = 20
     min_common: int = 40
+    max_rotation_deg: float = 10.0
 
     def __post_init__(self):
         if not self.min_parallax_px > 0:
             raise ValueError("min_parallax_px must be positive")
         if self.min_tracked < 0 or self.min_common < 0:
             raise ValueError("min_tracked and min_common must be >= 0")
+        if not self.max_rotation_deg > 0:
+            raise ValueError("max_rotation_deg must be positive")
 
 
 # --- back end ------------------------------------------------------------------------------

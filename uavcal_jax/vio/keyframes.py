@@ -115,7 +115,8 @@ def keyframe_decision(kf_ids: np.ndarray | None, kf_xy: np.ndarray | None,
     features, when it shares fewer than ``config.min_common`` with the last keyframe, or when
     the mean parallax of the shared features after removing the rotation ``R_kf_cur``
     (:func:`compensated_parallax`) is at least ``config.min_parallax_px`` pixels at
-    :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX`.
+    :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX`, or when ``R_kf_cur`` turns by more than
+    ``config.max_rotation_deg``.
 
     Args:
         kf_ids: (M,) int feature ids of the last keyframe (padding ids < 0 are ignored), or
@@ -152,12 +153,16 @@ def keyframe_decision(kf_ids: np.ndarray | None, kf_xy: np.ndarray | None,
     mean_px = float(np.mean(parallax[valid]) * NOMINAL_FOCAL_PX) if n_common else float("nan")
     raw_px = float(np.mean(raw) * NOMINAL_FOCAL_PX) if raw.size else float("nan")
 
+    turned = 0.0 if R_kf_cur is None else float(np.degrees(np.arccos(np.clip(
+        (np.trace(np.asarray(R_kf_cur, np.float64)) - 1.0) / 2.0, -1.0, 1.0))))
     if n_tracked < config.min_tracked:
         reason = "few_tracked"
     elif n_common < config.min_common:
         reason = "few_common"
     elif mean_px >= config.min_parallax_px:
         reason = "parallax"
+    elif turned > config.max_rotation_deg:
+        reason = "rotation"
     else:
         reason = ""
     return KeyframeDecision(bool(reason), reason, mean_px, raw_px, n_tracked, n_common)
