@@ -375,8 +375,10 @@ def test_pure_rotation_is_compensated_and_not_a_keyframe():
     mask = np.ones(len(ids), bool)
     par, valid = compensated_parallax(xy_kf, xy_cur, R_kf_cur)
     assert valid.all() and par.max() < 1e-12
-    comp = keyframe_decision(ids, xy_kf, ids, xy_cur, mask, R_kf_cur)
-    raw = keyframe_decision(ids, xy_kf, ids, xy_cur, mask, None)
+    # parallax alone (the turn rule, max_rotation_deg, has its own test)
+    parallax_only = KeyframeConfig(max_rotation_deg=90.0)
+    comp = keyframe_decision(ids, xy_kf, ids, xy_cur, mask, R_kf_cur, parallax_only)
+    raw = keyframe_decision(ids, xy_kf, ids, xy_cur, mask, None, parallax_only)
     assert not comp.is_keyframe and comp.reason == "" and comp.parallax_px < 1e-9
     assert comp.parallax_uncompensated_px > 3 * KeyframeConfig().min_parallax_px
     assert raw.is_keyframe and raw.reason == "parallax"
@@ -384,16 +386,16 @@ def test_pure_rotation_is_compensated_and_not_a_keyframe():
 
 
 def test_a_turn_past_max_rotation_is_a_keyframe_without_parallax():
-    """A turn on the spot: no compensated parallax, but past ``max_rotation_deg`` (10) the
+    """A turn on the spot: no compensated parallax, but past ``max_rotation_deg`` (5) the
     frame is a keyframe, so the window keeps up with a view that sweeps past."""
     pts_kf, ids = _scene(seed=4)
     mask = np.ones(len(ids), bool)
-    for degrees, expect in ((8.0, ""), (12.0, "rotation")):
+    for degrees, expect in ((4.0, ""), (7.0, "rotation")):
         R_kf_cur = _rotation([0.1, 1.0, 0.2], np.radians(degrees))
         d = keyframe_decision(ids, _normalised(pts_kf), ids, _normalised(pts_kf @ R_kf_cur),
                               mask, R_kf_cur)
         assert d.reason == expect and d.is_keyframe is bool(expect) and d.parallax_px < 1e-9
-    loose = KeyframeConfig(max_rotation_deg=15.0)
+    loose = KeyframeConfig(max_rotation_deg=10.0)
     assert not keyframe_decision(ids, _normalised(pts_kf), ids, _normalised(pts_kf @ R_kf_cur),
                                  mask, R_kf_cur, loose).is_keyframe
 
@@ -406,7 +408,7 @@ def test_rotation_from_the_gyro_in_the_body_frame():
     pts_cur_cam = (pts_kf_cam @ R_BC.T @ R_b_kf_cur) @ R_BC
     R_c = body_to_camera_rotation(R_b_kf_cur, R_BC)
     d = keyframe_decision(ids, _normalised(pts_kf_cam), ids, _normalised(pts_cur_cam),
-                          np.ones(len(ids), bool), R_c)
+                          np.ones(len(ids), bool), R_c, KeyframeConfig(max_rotation_deg=90.0))
     assert not d.is_keyframe and d.parallax_px < 1e-9
 
 
