@@ -395,6 +395,10 @@ def test_a_turn_past_max_rotation_is_a_keyframe_without_parallax():
         d = keyframe_decision(ids, _normalised(pts_kf), ids, _normalised(pts_kf @ R_kf_cur),
                               mask, R_kf_cur)
         assert d.reason == expect and d.is_keyframe is bool(expect) and d.parallax_px < 1e-9
+    # the turn rule waits rotation_min_interval_s (0.25 s) after the last keyframe
+    early = keyframe_decision(ids, _normalised(pts_kf), ids, _normalised(pts_kf @ R_kf_cur),
+                              mask, R_kf_cur, elapsed_s=0.1)
+    assert not early.is_keyframe
     loose = KeyframeConfig(max_rotation_deg=10.0)
     assert not keyframe_decision(ids, _normalised(pts_kf), ids, _normalised(pts_kf @ R_kf_cur),
                                  mask, R_kf_cur, loose).is_keyframe

@@ -237,10 +237,11 @@ class StereoVio:
             return self._reset(iv.gap, t_ns, None, timer, feats)
         pim, pred = prev.propagate(iv.samples, self.noise, t_ns)
         R_kf_cur = body_to_camera_rotation(slots.kf_rotation.T @ pred.rotation, self.R_BC0)
+        elapsed_s = (t_ns - slots.last_keyframe_time()) * 1e-9
         dec = keyframe_decision(slots.kf_features.ids, slots.kf_features.xy, feats.ids, feats.xy,
-                                feats.mask, R_kf_cur, cfg.keyframe)
+                                feats.mask, R_kf_cur, cfg.keyframe, elapsed_s)
         is_kf, reason = dec.is_keyframe, dec.reason
-        if not is_kf and (t_ns - slots.last_keyframe_time()) * 1e-9 > cfg.max_keyframe_interval_s:
+        if not is_kf and elapsed_s > cfg.max_keyframe_interval_s:
             is_kf, reason = True, "interval"
 
         depths = stereo_depths(feats, self.T_C0C1, cfg.min_stereo_depth, cfg.max_stereo_depth)

@@ -108,7 +108,8 @@ def compensated_parallax(xy_kf: np.ndarray, xy_cur: np.ndarray,
 def keyframe_decision(kf_ids: np.ndarray | None, kf_xy: np.ndarray | None,
                       cur_ids: np.ndarray, cur_xy: np.ndarray, cur_mask: np.ndarray,
                       R_kf_cur: np.ndarray | None = None,
-                      config: KeyframeConfig | None = None) -> KeyframeDecision:
+                      config: KeyframeConfig | None = None,
+                      elapsed_s: float = float("inf")) -> KeyframeDecision:
     """Is the current frame a keyframe?
 
     It is when there is no keyframe yet, when it has fewer than ``config.min_tracked`` valid
@@ -116,7 +117,8 @@ def keyframe_decision(kf_ids: np.ndarray | None, kf_xy: np.ndarray | None,
     the mean parallax of the shared features after removing the rotation ``R_kf_cur``
     (:func:`compensated_parallax`) is at least ``config.min_parallax_px`` pixels at
     :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX`, or when ``R_kf_cur`` turns by more than
-    ``config.max_rotation_deg``.
+    ``config.max_rotation_deg`` at least ``config.rotation_min_interval_s`` after the last
+    keyframe (``elapsed_s``).
 
     Args:
         kf_ids: (M,) int feature ids of the last keyframe (padding ids < 0 are ignored), or
@@ -128,6 +130,7 @@ def keyframe_decision(kf_ids: np.ndarray | None, kf_xy: np.ndarray | None,
         R_kf_cur: (3, 3) current-to-keyframe camera rotation (from the gyro, see
             :func:`body_to_camera_rotation`); ``None`` measures the raw parallax.
         config: the thresholds (default :class:`KeyframeConfig`'s).
+        elapsed_s: seconds since the last keyframe.
 
     Returns:
         A :class:`KeyframeDecision`.
@@ -161,7 +164,7 @@ def keyframe_decision(kf_ids: np.ndarray | None, kf_xy: np.ndarray | None,
         reason = "few_common"
     elif mean_px >= config.min_parallax_px:
         reason = "parallax"
-    elif turned > config.max_rotation_deg:
+    elif turned > config.max_rotation_deg and elapsed_s >= config.rotation_min_interval_s:
         reason = "rotation"
     else:
         reason = ""
