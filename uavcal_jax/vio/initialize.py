@@ -28,6 +28,16 @@ __all__ = [
 ]
 
 
+def _up(accel_mean: np.ndarray) -> np.ndarray:
+    """(3,) the unit "up" of an accelerometer reading (3,) m/s^2; ``ValueError`` where it is
+    not finite or nearly zero (free fall or a dead sensor)."""
+    a = np.asarray(accel_mean, np.float64).reshape(3)
+    n = float(np.linalg.norm(a))
+    if not np.isfinite(n) or n < 1.0:
+        raise ValueError(f"cannot level from an accelerometer reading of norm {n:.3g} m/s^2")
+    return a / n
+
+
 def gravity_aligned_rotation(accel_mean: np.ndarray, yaw: float = 0.0) -> np.ndarray:
     """Body-to-world rotation (3, 3) whose body z-axis measurement ``accel_mean`` (3,) m/s^2
     (the specific force of a body at rest or in uniform motion points up, world ``+z``) maps to
@@ -36,12 +46,8 @@ def gravity_aligned_rotation(accel_mean: np.ndarray, yaw: float = 0.0) -> np.nda
     Raises:
         ValueError: ``accel_mean`` is not finite or nearly zero (free fall or a dead sensor).
     """
-    a = np.asarray(accel_mean, np.float64).reshape(3)
-    n = float(np.linalg.norm(a))
-    if not np.isfinite(n) or n < 1.0:
-        raise ValueError(f"cannot level from an accelerometer reading of norm {n:.3g} m/s^2")
     # the smallest rotation taking the measured "up" (body) to world z
-    R, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), (a / n)[None])
+    R, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), _up(accel_mean)[None])
     R = R.as_matrix()
     return Rotation.from_euler("z", yaw - yaw_of(R)).as_matrix() @ R
 
@@ -60,12 +66,8 @@ def level_keeping_heading(accel_mean: np.ndarray, R_ref: np.ndarray) -> np.ndarr
     Raises:
         ValueError: ``accel_mean`` is not finite or nearly zero.
     """
-    a = np.asarray(accel_mean, np.float64).reshape(3)
-    n = float(np.linalg.norm(a))
-    if not np.isfinite(n) or n < 1.0:
-        raise ValueError(f"cannot level from an accelerometer reading of norm {n:.3g} m/s^2")
     R_ref = np.asarray(R_ref, np.float64)
-    up_world = R_ref @ (a / n)
+    up_world = R_ref @ _up(accel_mean)
     correction, _ = Rotation.align_vectors(np.array([[0.0, 0.0, 1.0]]), up_world[None])
     return correction.as_matrix() @ R_ref
 
