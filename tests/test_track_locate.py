@@ -348,3 +348,14 @@ def test_border_covariance_opens_the_cut_axis_only():
     np.testing.assert_allclose(left @ R_WC[:, 1], 0.0, atol=1e-12)
     both = BM.border_covariance([0, 30, 100, 240], (376, 240), R_WC, half)
     assert np.linalg.matrix_rank(both) == 2
+
+
+def test_cut_by_border_against_hand_values():
+    from uavcal_jax.track import cut_by_border
+
+    size = (376, 240)
+    assert not cut_by_border([10.0, 10.0, 100.0, 100.0], size, 1.0)
+    assert cut_by_border([0.5, 10.0, 100.0, 100.0], size, 1.0)  # left edge
+    assert cut_by_border([10.0, 10.0, 375.0, 100.0], size, 1.0)  # right edge, within 1 px
+    assert cut_by_border([10.0, 10.0, 100.0, 239.5], size, 1.0)  # bottom edge
+    assert not cut_by_border([0.0, 0.0, 376.0, 240.0], size, -1.0)  # a negative margin: never

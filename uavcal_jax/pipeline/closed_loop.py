@@ -71,7 +71,15 @@ from uavcal_jax.sim.frames import CameraEffects, make_frame_renderer
 from uavcal_jax.sim.ground_target import GroundPath, ground_track, scene_with_track
 from uavcal_jax.sim.imu_synth import imu_noise
 from uavcal_jax.sim.simulate import imu_calibration
-from uavcal_jax.track import LOST, TRACKING, UNSEEN, Setpoint, follow_step, locate_box
+from uavcal_jax.track import (
+    LOST,
+    TRACKING,
+    UNSEEN,
+    Setpoint,
+    cut_by_border,
+    follow_step,
+    locate_box,
+)
 from uavcal_jax.track import filter as target_filter
 from uavcal_jax.track.associate import box_iou
 from uavcal_jax.track.box_model import border_covariance, box_centre_candidates
@@ -233,14 +241,6 @@ class _Chooser:
             return None, float("nan")
         self.box, self.missed = np.asarray(det.boxes[pick], np.float64), 0
         return self.box, float(det.scores[pick])
-
-
-def _cut_by_border(box, size, margin: float) -> bool:
-    """As :meth:`uavcal_jax.pipeline.targets.Localizer.cut_by_border`."""
-    if margin < 0:
-        return False
-    w, h = size
-    return box[0] <= margin or box[1] <= margin or box[2] >= w - margin or box[3] >= h - margin
 
 
 def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detector_name: str,
@@ -405,7 +405,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                 unmeasured[j] = "not detected"
             elif T_pose is None:
                 unmeasured[j] = "no pose"
-            elif not (half_size is not None and run.detect.locate_cut) and _cut_by_border(
+            elif not (half_size is not None and run.detect.locate_cut) and cut_by_border(
                     box, config.resolution, run.detect.border_px):
                 unmeasured[j] = "cut by the border"
             else:

@@ -45,6 +45,7 @@ from uavcal_jax.track import (
     REASONS,
     FilterOutput,
     assign_track_ids,
+    cut_by_border,
     followed_detections,
     locate_box,
     longest_track,
@@ -109,12 +110,7 @@ class Localizer:
 
     def cut_by_border(self, box) -> bool:
         """The box reaches within ``detect.border_px`` of the image border."""
-        margin = self._config.detect.border_px
-        if margin < 0:
-            return False
-        w, h = self._size
-        x1, y1, x2, y2 = (float(v) for v in box)
-        return x1 <= margin or y1 <= margin or x2 >= w - margin or y2 >= h - margin
+        return cut_by_border(box, self._size, self._config.detect.border_px)
 
     def can_locate(self, box) -> bool:
         """A box can be located: inside the image, or cut by its border with

@@ -40,7 +40,7 @@ from uavcal_jax.track.filter import (
 )
 from uavcal_jax.track.follow import FollowConfig, Setpoint, follow_setpoints, follow_step
 from uavcal_jax.track.heading import HeadingConfig
-from uavcal_jax.track.locate import REASONS, LocateConfig, Located, locate_box
+from uavcal_jax.track.locate import REASONS, LocateConfig, Located, cut_by_border, locate_box
 
 __all__ = [
     "LOST",
@@ -58,6 +58,7 @@ __all__ = [
     "Located",
     "Setpoint",
     "assign_track_ids",
+    "cut_by_border",
     "follow_setpoints",
     "follow_step",
     "followed_detections",

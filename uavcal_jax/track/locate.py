@@ -46,6 +46,7 @@ __all__ = [
     "Located",
     "box_center",
     "box_depth",
+    "cut_by_border",
     "depth_sigma",
     "locate_box",
     "locate_from_depth",
@@ -139,6 +140,17 @@ class Located(NamedTuple):
     located: jax.Array
     reason: jax.Array
     depth: jax.Array
+
+
+def cut_by_border(box, size, margin: float) -> bool:
+    """Whether ``box`` (4,) ``(x1, y1, x2, y2)`` pixels reaches within ``margin`` pixels of the
+    border of an image of ``size`` ``(width, height)``; never where ``margin < 0``. Plain
+    Python (a per-detection test outside the jitted numerics)."""
+    if margin < 0:
+        return False
+    w, h = size
+    x1, y1, x2, y2 = (float(v) for v in box)
+    return x1 <= margin or y1 <= margin or x2 >= w - margin or y2 >= h - margin
 
 
 def box_center(box: jax.Array) -> jax.Array:
