@@ -17,10 +17,20 @@ paper's convention) and drawn by the protocol (:func:`uavcal_jax.calib.loop.eval
 - ``imu_only``: the same without the video reducer (``model.use_video=false``);
 - ``closed_form``: the transformer whose head learns a correction to the window mean below
   (``model.closed_form=window_mean``; its untrained prediction is that baseline);
+- ``motion_tokens``: the shipped design (:data:`uavcal_jax.calib.presets.SHIPPED`): rotation-
+  residual tokens from the front end's visual rotations (``window.rotations=visual``, cached
+  beside each recording) and a head that starts at their gyro least squares, on the
+  accelerometer at the mean offset (physical protocol) or the window mean (paper protocol,
+  ``model.closed_form=rotation_window_mean``);
 - ``mean_offset``: the mean of the protocol's training offsets, for every window;
 - ``window_mean``: each window's mean IMU sample minus the training set's mean (no learning;
   right where the window's motion averages out and gravity's projection matches the training
   set's mean);
+- ``vio_bias`` and ``visual_ls`` (physical protocol only, ``--blind-offsets``): the
+  estimators that need no ground truth, ``uavcal calib predict --method vio-bias`` (the VIO's
+  bias states) and ``visual-ls`` (the gyro's least squares against the camera's rotations),
+  each on the whole held-out recording with the trial's first offsets injected into its IMU;
+  scored against the ``total`` label over the span each used;
 - ``least_squares``: the classical constant-offset fit of each window's full-rate IMU against
   the ground-truth states (:func:`uavcal_jax.calib.baselines.least_squares_windows`); it
   estimates the stream's whole constant error, i.e. the injected offset **plus** the
@@ -106,6 +116,9 @@ from uavcal_jax.calib.trials import (
     write_trial_data,
 )
 from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
+from uavcal_jax.pipeline.offset_scores import NO_CORRECTION, pooled_scores
+from uavcal_jax.pipeline.predict_offset import predict_offset
 from uavcal_jax.plots import plot_offsets
 from uavcal_jax.xla_cache import enable_compilation_cache
 
@@ -128,15 +141,32 @@ EXPERIMENTS = {
     "mh01_kfold": Experiment("euroc", "kfold", ("MH_01_easy",),
                              "MH_01_easy (sim), k-fold over windows"),
 }
-#: Trained variants: their extra settings.
-VARIANTS = {"transformer": (), "imu_only": ("model.use_video=false",),
-            "closed_form": ("model.closed_form=window_mean",)}
+#: Trained variants: their extra settings, per protocol (``None``: any protocol).
+VARIANTS = {
+    "transformer": {None: ()},
+    "imu_only": {None: ("model.use_video=false",)},
+    "closed_form": {None: ("model.closed_form=window_mean",)},
+    # the shipped design (calib.presets.SHIPPED); under the paper protocol the head starts at
+    # the window mean on the accelerometer, the protocol's strong no-learning estimate
+    "motion_tokens": {
+        "physical": ("model.motion_tokens=true", "model.closed_form=rotation_ls",
+                     "model.correction_scale=0.05"),
+        "paper": ("model.motion_tokens=true", "model.closed_form=rotation_window_mean")},
+}
+#: The variants whose windows need the camera's relative rotations (``window.rotations``).
+VISUAL_VARIANTS = ("motion_tokens",)
+#: The estimators that need no ground truth and run on whole held-out recordings
+#: (``uavcal calib predict --method``): table key -> registered method.
+BLIND_METHODS = {"vio_bias": "vio-bias", "visual_ls": "visual-ls"}
 METHODS = {
     "transformer": "transformer (video + IMU)",
     "imu_only": "transformer, IMU only",
     "closed_form": "transformer on the window mean (closed-form head)",
+    "motion_tokens": "motion-token transformer (closed-form head)",
     "mean_offset": "mean-offset baseline",
     "window_mean": "window-mean baseline",
+    "vio_bias": "VIO bias states (no ground truth)",
+    "visual_ls": "visual rotations' gyro least squares (no ground truth)",
     "least_squares": "least squares vs ground-truth states",
     "least_squares_oracle": "least squares minus true IMU bias (oracle)",
 }
@@ -152,6 +182,7 @@ HEADLINE = ("sign_f1", "offset_rmse", "gyro_rmse", "accel_rmse")
 FIGURE2_STYLES = {"transformer": dict(color="C0", marker=".", ls="-", lw=1, ms=3),
                   "imu_only": dict(color="C1", marker=".", ls="-", lw=1, ms=3),
                   "closed_form": dict(color="C3", marker=".", ls="-", lw=1, ms=3),
+                  "motion_tokens": dict(color="C4", marker=".", ls="-", lw=1, ms=3),
                   "least_squares": dict(color="C2", ls="-", lw=1, ms=3),
                   "least_squares_oracle": dict(color="C2", ls=":", lw=1, ms=3),
                   "mean_offset": dict(color="0.5", ls="-.", lw=1, ms=3)}
@@ -186,6 +217,11 @@ def _arguments() -> tuple[argparse.Namespace, list[str], list[str], int | None]:
     ap.add_argument("--trial-seeds", action="store_true",
                     help="trial i trains with seed + i (its own validation offsets; one "
                          "compile per trial)")
+    ap.add_argument("--blind-offsets", type=int, default=2, metavar="N",
+                    help="physical protocol: the first N of each trial's offsets injected "
+                         "into each held-out recording for the estimators that need no "
+                         f"ground truth ({', '.join(BLIND_METHODS.values())}; one VIO run "
+                         "per recording and offset); 0: none [default: %(default)s]")
     ap.add_argument("--plot-trials", type=_parse_trials, default={0}, metavar="I,J|all",
                     help="trials drawn as Figure 2, by their index among all the "
                          "experiment's trials (only those run) [default: 0]")
@@ -222,7 +258,8 @@ def _load(args, experiments: list[str], window) -> tuple[dict, dict, dict, dict]
         seq_name.update({str(Path(f).absolute()): n for n, f in zip(names, folders, strict=True)})
         for f in folders:
             if f not in loaded:
-                (loaded[f],) = load_windows([f], window)
+                (loaded[f],) = load_windows([f], window, rotation_source=(
+                    visual_rotation_source if window.rotations == "visual" else None))
         exp_parts[name] = [loaded[f] for f in folders]
     return exp_parts, seq_name, skipped, loaded
 
@@ -246,7 +283,8 @@ def _plan(args, exp_parts: dict, seq_name: dict, protocols: list[str], extra: li
                                "train_windows": count_windows(train),
                                "val_windows": count_windows(val), "val": val, "jobs": {}}
                 for variant in args.variants:
-                    settings = VARIANTS[variant]
+                    per_protocol = VARIANTS[variant]
+                    settings = per_protocol.get(protocol, per_protocol.get(None, ()))
                     seed = args.seed + i if args.trial_seeds else args.seed
                     calib, _, _ = resolve(args, [*extra, f"train.seed={seed}", *settings],
                                           protocol=protocol, validation=loop.validation,
@@ -261,9 +299,46 @@ def _plan(args, exp_parts: dict, seq_name: dict, protocols: list[str], extra: li
     return jobs, trials, job_trial, trial_counts
 
 
-def _first_call(trials: dict, job_trial: dict):
-    """``after_first`` of :func:`train_jobs`: the trial's K offsets (independent of training)
-    and least squares on the same windows with the same offsets, once per trial."""
+def _blind_trial(t: dict, n_offsets: int, quiet: bool) -> dict:
+    """The estimators that need no ground truth (:data:`BLIND_METHODS`) on each held-out
+    recording, once per each of the trial's first ``n_offsets`` offsets injected into its
+    IMU (:func:`~uavcal_jax.pipeline.predict_offset.predict_offset`, ``total`` label: the
+    offset plus the sensor's own bias over the span the estimate used): per method its
+    :data:`HEADLINE` numbers pooled over the recordings and offsets (``None`` for a sensor
+    it does not estimate), ``seconds`` and the ``rows``."""
+    rows = []
+    for part in t["val"]:
+        for j, offset in enumerate(t["offsets"][:n_offsets]):
+            for key, method in BLIND_METHODS.items():
+                t0 = time.perf_counter()
+                summary, _ = predict_offset(part.source, method,
+                                            inject=np.asarray(offset, np.float64))
+                rows.append({"recording": f"{part.source}#{j}", "method": key,
+                             "channels": summary["channels"], "offset": summary["offset"],
+                             "true": summary["true"], "error": summary["error"],
+                             "seconds": round(time.perf_counter() - t0, 1)})
+                log(quiet, f"  {key} on {Path(part.source).name}, offset {j}: error "
+                           f"{np.round(summary['error'], 4).tolist()} ({rows[-1]['seconds']} s)")
+    out = {}
+    for key, score in pooled_scores(rows).items():
+        if key == NO_CORRECTION:
+            continue
+        rmse = list(score["rmse"].values())
+        out[key] = {"sign_f1": score["sign_f1"], "gyro_rmse": score["gyro_rmse"],
+                    "accel_rmse": score["accel_rmse"],
+                    "offset_rmse": (float(np.sqrt(np.mean(np.square(rmse))))
+                                    if len(rmse) == 6 else None),
+                    "recordings": score["recordings"],
+                    "seconds": sum(r["seconds"] for r in rows if r["method"] == key),
+                    "rows": [r for r in rows if r["method"] == key]}
+    return out
+
+
+def _first_call(trials: dict, job_trial: dict, blind_offsets: int, quiet: bool):
+    """``after_first`` of :func:`train_jobs`: the trial's K offsets (independent of training),
+    least squares on the same windows with the same offsets and, under the physical
+    protocol, the estimators that need no ground truth (:func:`_blind_trial`), once per
+    trial."""
     gt_cache: dict[str, object] = {}
 
     def ground_truth(source: str):
@@ -282,6 +357,9 @@ def _first_call(trials: dict, job_trial: dict):
                                                   job.config.injection.single_sensor,
                                                   ground_truth))
             t["least_squares_s"] = round(time.perf_counter() - t0, 1)
+            if job_trial[job.name][1] == "physical" and blind_offsets > 0 and offsets.shape[
+                    1] == 6:
+                t["blind"] = _blind_trial(t, blind_offsets, quiet)
         elif not np.allclose(offsets, t["offsets"]):
             # both variants draw from (seed, protocol, training statistics): a bug if not
             t.setdefault("offset_mismatch", []).append(job.name)
@@ -310,6 +388,7 @@ def _evaluate(args, trials: dict, channels) -> list[str]:
             methods["least_squares"] = {**seed_summary([ls["metrics"]], channels),
                                         "interval_s": ls["interval_s"]}
             methods["least_squares_oracle"] = seed_summary([ls["oracle_metrics"]], channels)
+        methods.update(t.get("blind", {}))
         t["methods"] = {m: methods[m] for m in METHODS if m in methods}
         if args.plot_trials == "all" or key[2] in args.plot_trials:
             plots.append(str(_figure2(args, key, t, states, channels)))
@@ -341,6 +420,9 @@ def main() -> None:
     budget = Budget(None if args.paper else args.budget)
     enable_compilation_cache()
     extra = [] if args.folds is None else [f"loop.folds={args.folds}"]
+    if any(v in VISUAL_VARIANTS for v in args.variants):
+        # one window set serves every variant: the rotations ride along unused elsewhere
+        extra.append("window.rotations=visual")
     _, _, window = resolve(args, extra, protocol="paper", validation="loo")
     shutil.rmtree(args.out / "runs", ignore_errors=True)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -355,7 +437,9 @@ def main() -> None:
     log(args.quiet, f"{len(jobs)} fits, {n_plots} plots; "
                     f"{'no time limit' if args.paper else f'{budget.left() / 60:.1f} min left'}")
     schedule = train_jobs(jobs, budget, reserve_s=PLOT_RESERVE_S * n_plots + 5.0,
-                          quiet=args.quiet, after_first=_first_call(trials, job_trial))
+                          quiet=args.quiet,
+                          after_first=_first_call(trials, job_trial, args.blind_offsets,
+                                                  args.quiet))
 
     channels = None
     if jobs:
@@ -477,6 +561,26 @@ def _epochs(stat: dict) -> str:
         f" ({blo})" if blo == bhi else f" ({blo}-{bhi})")
 
 
+def _paired_lines(trials: dict) -> list[str]:
+    """Lines of the closed-form heads' offset RMSE minus the window mean's on the same trial
+    (mean ± std over the trials): the check that the head improves on where it starts."""
+    diffs: dict = {}
+    for (name, protocol, _), t in trials.items():
+        base = t["methods"].get("window_mean")
+        for variant in ("closed_form", "motion_tokens"):
+            if base is not None and variant in t["methods"]:
+                diffs.setdefault((name, protocol, variant), []).append(
+                    t["methods"][variant]["offset_rmse"] - base["offset_rmse"])
+    if not diffs:
+        return []
+    lines = ["Closed-form heads against the window mean, paired by trial (offset RMSE "
+             "difference, negative: the head is better; mean ± std over trials):", ""]
+    for (name, protocol, variant), d in diffs.items():
+        lines.append(f"- {EXPERIMENTS[name].label}, {protocol}: {METHODS[variant]} "
+                     f"{np.mean(d):+.4f} ± {np.std(d):.4f} ({len(d)} trials)")
+    return lines + [""]
+
+
 def _table(agg, trials, settings, rec_budget, schedule, skipped, args) -> str:
     seqs: dict = {}
     for (name, _, i), t in trials.items():
@@ -515,6 +619,7 @@ def _table(agg, trials, settings, rec_budget, schedule, skipped, args) -> str:
              "protocol, one offset per trial); ours are on simulated data.", ""]
     if skipped:
         lines += [f"- Skipped: {k}: {v}" for k, v in skipped.items()] + [""]
+    lines += _paired_lines(trials)
     lines += ["| experiment | protocol | method | trials | epochs | sign F1 (%) | offset RMSE | "
               "gyro RMSE (rad/s) | accel RMSE (m/s^2) | paper sign F1 (%) | "
               "paper offset RMSE |",

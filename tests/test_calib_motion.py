@@ -275,3 +275,33 @@ def test_correction_scale_shrinks_the_learned_correction_on_the_closed_form_chan
             std * np.array([scale] * 3 + [1.0] * 3), pred.shape), rtol=1e-4, atol=1e-7)
     with pytest.raises(ValueError, match="correction_scale"):
         ModelConfig(correction_scale=0.0)
+
+
+def test_rotation_window_mean_takes_the_gyro_from_rotations_and_the_rest_from_the_mean(
+        parallel, state):
+    """``rotation_window_mean``: the gyro as ``rotation_ls``, the accelerometer as each
+    window's mean sample minus the training mean (the ``window_mean`` closed form); the
+    head's unit is ``correction_scale`` on every channel."""
+    _, batch = parallel
+    offset = np.concatenate([-0.04 * AXIS, [0.3, -0.2, 0.5]]).astype(np.float32)
+    motion = {k: batch[k] for k in ("gyro_seq", "dt_seq", "rot_cam", "rot_mask")}
+    motion["gyro_seq"] = motion["gyro_seq"] + offset[:3]
+    imu = batch["imu"] + offset
+    variables = state.variables()
+    forms = {}
+    for form in ("rotation_ls", "rotation_window_mean", "window_mean"):
+        model = Calibrator(dataclasses.replace(CONFIG.model, closed_form=form))
+        forms[form] = np.asarray(jax.jit(model.apply)(variables, None, imu, batch["mask"],
+                                                      motion))
+    np.testing.assert_allclose(forms["rotation_window_mean"][:, :3],
+                               forms["rotation_ls"][:, :3], atol=1e-6)
+    np.testing.assert_allclose(forms["rotation_window_mean"][:, :3],
+                               np.broadcast_to((0.03 - 0.04) * AXIS, (3, 3)), atol=1e-4)
+    mask = batch["mask"][..., None]
+    mean = (imu * mask).sum(axis=1) / mask.sum(axis=1)
+    expected = mean - np.asarray(variables["normalization"]["imu_mean"])
+    np.testing.assert_allclose(forms["rotation_window_mean"][:, 3:], expected[:, 3:],
+                               rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(forms["window_mean"], expected, rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="motion_tokens"):
+        ModelConfig(closed_form="rotation_window_mean")

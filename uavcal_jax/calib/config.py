@@ -54,7 +54,9 @@ ACTIVATIONS = ("relu", "gelu")
 FRAME_TOKENS = ("learned", "first_patch")
 FRAME_ENCODER_DTYPES = ("float32", "bfloat16")
 #: Closed-form estimates the head can start from (``model.closed_form``).
-CLOSED_FORMS = ("none", "window_mean", "rotation_ls")
+CLOSED_FORMS = ("none", "window_mean", "rotation_ls", "rotation_window_mean")
+#: The closed forms that solve the gyro from the rotation residuals (need motion tokens).
+ROTATION_CLOSED_FORMS = ("rotation_ls", "rotation_window_mean")
 SIGN_TERMS = ("sign", "tanh")
 LOSS_UNITS = ("si", "standardized")
 #: Offset-injection protocols (``injection.protocol``).
@@ -125,7 +127,10 @@ class ModelConfig:
             window's rotation residuals, ``-sum(dt_k^2 r_k) / sum(dt_k^2)`` over its valid
             intervals, the mean ``-r_k`` for equal intervals (see ``motion_tokens``); other
             channels, and a window without a valid interval: the mean offset; needs
-            ``motion_tokens`` and ``standardize``).
+            ``motion_tokens`` and ``standardize``) or ``"rotation_window_mean"`` (the gyro
+            as ``rotation_ls``, the other channels as ``window_mean``: the paper protocol's
+            strong no-learning estimate on the accelerometer, whose offsets are drawn around
+            the IMU's mean, with the camera's on the gyro).
         motion_tokens: add one rotation-residual token per frame interval to the fused
             sequence (summed with ``T_v + T_i``, as eq. 10 sums those): ``r_k = Log(dR_gyro^T
             dR_cam) / dt`` (rad/s, body frame), ``dR_gyro`` the interval's full-rate gyro
@@ -135,11 +140,12 @@ class ModelConfig:
             IMU channels (a 3-channel model must be a gyro model).
         correction_scale: the unit of the learned correction on the channels a closed form
             estimates (the gyro under ``rotation_ls``, every channel under
-            ``window_mean``), as a fraction of the offset's standard deviation: the head's
-            output ``y`` adds ``correction_scale * offset_std * y`` there. The rotation
-            residuals' least squares is already within about 1e-3 rad/s of the gyro error,
-            so a correction in the offset's own units (1.0) lets training noise undo it; the
-            shipped weights use 0.05. Channels without a closed form keep the full unit.
+            ``window_mean`` and ``rotation_window_mean``), as a fraction of the offset's
+            standard deviation: the head's output ``y`` adds ``correction_scale *
+            offset_std * y`` there. The rotation residuals' least squares is already within
+            about 1e-3 rad/s of the gyro error, so a correction in the offset's own units
+            (1.0) lets training noise undo it; the shipped weights use 0.05. Channels
+            without a closed form keep the full unit.
     """
 
     d_model: int = 256
@@ -186,9 +192,9 @@ class ModelConfig:
         if self.closed_form != "none" and not self.standardize:
             raise ValueError(f"closed_form={self.closed_form!r} needs standardize (the "
                              "training statistics it subtracts)")
-        if self.closed_form == "rotation_ls" and not self.motion_tokens:
-            raise ValueError("closed_form='rotation_ls' needs motion_tokens (the rotation "
-                             "residuals it solves from)")
+        if self.closed_form in ROTATION_CLOSED_FORMS and not self.motion_tokens:
+            raise ValueError(f"closed_form={self.closed_form!r} needs motion_tokens (the "
+                             "rotation residuals it solves from)")
         if not self.correction_scale > 0:
             raise ValueError(f"correction_scale must be > 0, got {self.correction_scale}")
         if self.frame_encoder_dtype not in FRAME_ENCODER_DTYPES:

@@ -41,7 +41,8 @@ gyro samples composed, ``exp(w_1 dt_1) exp(w_2 dt_2) ...``), which is ``-(gyro e
 constant error and exact rotations. ``Dense((-r_k - m) / s)`` (``m``, ``s``: the gyro
 channels' offset mean and standard deviation when standardised), zero on invalid intervals,
 is summed into the fused sequence with ``T_v + T_i``. ``closed_form="rotation_ls"`` starts
-the head at the rotation residuals' least-squares gyro error.
+the head at the rotation residuals' least-squares gyro error (``"rotation_window_mean"``: the
+same, with the window mean on the accelerometer).
 
 The frame encoder depends on one frame only, so :meth:`Calibrator.encode_frames` and
 :meth:`Calibrator.predict_from_frame_tokens` split the model at the frame tokens: over a
@@ -60,7 +61,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from uavcal_jax.calib.config import ModelConfig
+from uavcal_jax.calib.config import ROTATION_CLOSED_FORMS, ModelConfig
 from uavcal_jax.calib.dropout import Dropout
 from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encoder, dot_general_for
 from uavcal_jax.data.color import LUMA_WEIGHTS
@@ -344,26 +345,30 @@ class Calibrator(nn.Module):
         """``(C,)`` the head's unit per channel, in offset standard deviations:
         ``correction_scale`` on the channels the closed form estimates, 1 elsewhere."""
         c = self.config
-        covered = {"none": 0, "window_mean": channels, "rotation_ls": 3}[c.closed_form]
+        covered = {"none": 0, "window_mean": channels, "rotation_ls": 3,
+                   "rotation_window_mean": channels}[c.closed_form]
         return jnp.where(jnp.arange(channels) < covered, c.correction_scale, 1.0).astype(F32)
 
     def _closed_form(self, imu, mask, norm, residual=None) -> jax.Array:
         """``(B, C)`` the estimate the standardised head corrects (``closed_form``): the
         mean offset, each window's mean sample (real slots) minus the training mean, or
-        (``rotation_ls``) the gyro error that best explains the rotation residuals:
-        ``argmin_e sum_k |dt_k r_k + dt_k e|^2 = -sum(dt_k^2 r_k) / sum(dt_k^2)``."""
-        if self.config.closed_form == "rotation_ls":
-            base = jnp.broadcast_to(norm["offset_mean"], imu.shape[:-2] + imu.shape[-1:])
+        (``rotation_ls``, ``rotation_window_mean``) the gyro error that best explains the
+        rotation residuals, ``argmin_e sum_k |dt_k r_k + dt_k e|^2 = -sum(dt_k^2 r_k) /
+        sum(dt_k^2)``, with the mean offset (``rotation_ls``) or the window mean on the other
+        channels and on a window without a valid interval."""
+        form = self.config.closed_form
+        if form in ROTATION_CLOSED_FORMS:
+            base = (_window_mean(imu, mask) - norm["imu_mean"]
+                    if form == "rotation_window_mean" else
+                    jnp.broadcast_to(norm["offset_mean"], imu.shape[:-2] + imu.shape[-1:]))
             r, dt = residual
             w = jnp.square(dt)[..., None]
             total = jnp.sum(w, axis=-2)
             gyro = -jnp.sum(w * r, axis=-2) / jnp.maximum(total, 1e-12)
             gyro = jnp.where(total > 0, gyro, base[..., :3])
             return jnp.concatenate([gyro, base[..., 3:]], axis=-1)
-        if self.config.closed_form == "window_mean":
-            w = mask.astype(F32)[..., None]
-            mean = jnp.sum(imu * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
-            return mean - norm["imu_mean"]
+        if form == "window_mean":
+            return _window_mean(imu, mask) - norm["imu_mean"]
         return jnp.broadcast_to(norm["offset_mean"], imu.shape[:-2] + imu.shape[-1:])
 
     def __call__(self, frames, imu, mask, motion=None, *,
@@ -373,6 +378,12 @@ class Calibrator(nn.Module):
             frame_tokens = self.encode_frames(frames, mask, deterministic=deterministic)
         return self.predict_from_frame_tokens(frame_tokens, imu, mask, motion,
                                               deterministic=deterministic)
+
+
+def _window_mean(imu: jax.Array, mask: jax.Array) -> jax.Array:
+    """``(B, C)`` each window's mean IMU sample over its real slots."""
+    w = mask.astype(F32)[..., None]
+    return jnp.sum(imu * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
 
 
 def build_model(config: ModelConfig) -> Calibrator:
