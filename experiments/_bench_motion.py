@@ -5,7 +5,8 @@
   ``window.rotations=visual`` computes once per recording) on the real V1_01 slice, per
   752x480 frame, and scaled to a 60 s sequence at 20 Hz.
 - :func:`bench_motion_model`: a preset's model with ``model.motion_tokens`` and the
-  ``rotation_ls`` closed form against the same model without them: one window, and the
+  ``rotation_ls`` closed form against the same model without them, timed in turn (one call
+  of each, ``repeats`` rounds after two of warm-up): one window, and the
   windows of a 60 s sequence from frame tokens (:func:`uavcal_jax.calib.inference.
   predict_windows`, the frames encoded once, the encoding's cost is the same either way).
 
@@ -75,7 +76,7 @@ def bench_motion_model(config: CalibConfig, window: dict, tokens_index, sequence
     T = window["imu"].shape[1]
     n_tokens, index = tokens_index
     seq_motion = synthetic_motion(rng, index.shape)
-    out = {}
+    calls, out = {}, {}
     for name, cfg, extra in (("plain", config, {}),
                              ("motion", motion_config, synthetic_motion(rng, (1, T)))):
         state = create_train_state(cfg, jax.random.key(0), {**window, **extra})
@@ -84,18 +85,26 @@ def bench_motion_model(config: CalibConfig, window: dict, tokens_index, sequence
         apply = jax.jit(lambda v, f, i, m, mo, model=model: model.apply(v, f, i, m, mo))
         args = (variables, window["frames"], window["imu"], window["mask"], motion)
         compiled, compile_s = time_compile(apply, *args)
-        wall = time_calls(lambda c=compiled, a=args: jax.block_until_ready(c(*a)),
-                          repeats=repeats, warmup=2).wall_s
         tokens = np.asarray(rng.normal(size=(n_tokens, cfg.model.d_model)), np.float32)
         mask = np.ones(index.shape, bool)
         seq_args = (model, variables, tokens, index, mask, sequence_imu,
                     seq_motion if extra else None)
         jax.block_until_ready(inference.predict_windows(*seq_args))  # compiles
-        seq_wall = time_calls(lambda a=seq_args: jax.block_until_ready(
-            inference.predict_windows(*a)), repeats=repeats, warmup=1).wall_s
-        out[name] = {"window_ms": round(1e3 * median(wall), 2),
-                     "window_compile_s": round(compile_s, 2),
-                     "sequence_predict_s": round(median(seq_wall), 4)}
+        calls[name] = (lambda c=compiled, a=args: c(*a),
+                       lambda a=seq_args: inference.predict_windows(*a))
+        out[name] = {"window_compile_s": round(compile_s, 2)}
+    # interleaved, one call of each in turn: this machine's speed drifts by a quarter
+    walls = {name: ([], []) for name in calls}
+    for r in range(repeats + 2):
+        for name, (window_call, seq_call) in calls.items():
+            w = time_calls(window_call, repeats=1, warmup=1 if r == 0 else 0).wall_s
+            q = time_calls(seq_call, repeats=1, warmup=1 if r == 0 else 0).wall_s
+            if r >= 2:  # two rounds of warm-up
+                walls[name][0].extend(w)
+                walls[name][1].extend(q)
+    for name, (w, q) in walls.items():
+        out[name].update(window_ms=round(1e3 * median(w), 2),
+                         sequence_predict_s=round(median(q), 4))
     out["window_extra_ms"] = round(out["motion"]["window_ms"] - out["plain"]["window_ms"], 2)
     out["sequence_extra_s"] = round(out["motion"]["sequence_predict_s"]
                                     - out["plain"]["sequence_predict_s"], 4)

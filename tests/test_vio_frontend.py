@@ -446,3 +446,33 @@ def test_keyframe_track_count_rules():
     padded = np.r_[ids, -np.ones(30, int)]
     d = keyframe_decision(padded, np.r_[xy, np.zeros((30, 2))], ids, xy, all_)
     assert not d.is_keyframe and d.n_common == len(ids) and d.parallax_px == 0.0
+
+
+def test_excluded_boxes_hold_no_track_and_no_new_corner():
+    """A moving object's box (``exclude``, grown by ``exclude_margin``): the tracks that land
+    in it end, and no corner is detected there; the rest of the image keeps its tracks."""
+    tex = _texture(2)
+    M = np.array([[1.0, 0.0, 2.0], [0.0, 1.0, -1.0]])
+    moved = cv2.warpAffine(tex, M, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    cfg = FrontendConfig(equalize="none", exclude_margin=0.1)
+    box = np.array([[60.0, 40.0, 260.0, 200.0]])
+    grown = np.array([40.0, 24.0, 280.0, 216.0])  # 10 % of 200 x 160 more on each side
+
+    def inside(f):
+        uv = f.uv[f.mask]
+        return np.all((uv >= grown[:2]) & (uv < grown[2:]), axis=1)
+
+    plain = FeatureTracker(_pinhole(), config=cfg)
+    f0 = plain.track(0.0, _u8(tex))
+    assert inside(f0).sum() > 10  # the texture has corners there
+    masked = FeatureTracker(_pinhole(), config=cfg)
+    g0 = masked.track(0.0, _u8(tex), exclude=box)
+    assert not inside(g0).any() and g0.n_tracked > 100
+    # tracked from an unmasked frame into a masked one: those in the box end there
+    g1 = plain.track(0.05, _u8(moved), exclude=box)
+    assert not inside(g1).any()
+    kept = np.intersect1d(f0.ids[f0.mask][~inside(f0)], g1.ids[g1.mask])
+    assert len(kept) > 0.8 * (~inside(f0)).sum() - 10
+    # an empty box list changes nothing
+    again = FeatureTracker(_pinhole(), config=cfg).track(0.0, _u8(tex), exclude=np.zeros((0, 4)))
+    np.testing.assert_array_equal(again.uv, f0.uv)

@@ -6,10 +6,11 @@ Per frame ``j`` (20 Hz; scene time ``t_j`` in seconds since the IMU stream's fir
 1. render cam0, cam1 and cam0's depth from the drone's *true* pose at ``t_j`` (EuRoC's rig,
    pitched ``camera_pitch_deg`` below the quadrotor's forward axis; the scripted car of
    :mod:`uavcal_jax.sim.ground_target` where it is at ``t_j``);
-2. the stereo VIO (:class:`~uavcal_jax.vio.estimator.StereoVio`) on the pair, with the IMU the
-   drone has produced up to ``t_j``;
-3. the detector on the left image (the shipped network, a trained run, or the renderer's
+2. the detector on the left image (the shipped network, a trained run, or the renderer's
    own target boxes, ``labels``);
+3. the stereo VIO (:class:`~uavcal_jax.vio.estimator.StereoVio`) on the pair, with the IMU the
+   drone has produced up to ``t_j``, its front end tracking nothing inside the detections
+   (``detect.mask_vio``);
 4. the followed box: the detection that overlaps the previous followed box most (IoU at least
    ``associate.min_iou``); at the start, and after ``associate.max_missed`` frames without one,
    the highest-scoring box of ``detect.follow_class``;
@@ -370,21 +371,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
             rec["target"][j] = truth
             in_view[j] = int(vis0[0][0]) >= config.min_visible_pixels
 
-            # 2. the pose
-            c0 = time.perf_counter()
-            if vio is not None:
-                est = vio.process(int(t_imu[k_imu]), left, right)
-                ok = est.has_pose and np.all(np.isfinite(est.position))
-                T_pose = _pose(est.rotation, est.position) if ok else None
-            else:
-                T_pose = T_WB
-            ms["vio"][j] = 1e3 * (time.perf_counter() - c0)
-            if T_pose is not None:
-                rec["vio_raw"][j] = T_pose[:3, 3]
-                rec_R[j] = T_pose[:3, :3]
-                T_err_all[j] = T_WB @ np.linalg.inv(T_pose)
-
-            # 3. detect, 4. choose
+            # 2. detect, choose (first: the VIO's front end leaves the boxes out)
             c0 = time.perf_counter()
             if detector is None:
                 det = label_detections(boxes0[0], vis0[0], target_class,
@@ -397,6 +384,21 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
                                       np.asarray(found.classes, np.int64)[keep])
             box, _ = chooser(det)
             ms["detect"][j] = 1e3 * (time.perf_counter() - c0)
+
+            # 3. the pose
+            c0 = time.perf_counter()
+            if vio is not None:
+                est = vio.process(int(t_imu[k_imu]), left, right,
+                                  det.boxes if run.detect.mask_vio else None)
+                ok = est.has_pose and np.all(np.isfinite(est.position))
+                T_pose = _pose(est.rotation, est.position) if ok else None
+            else:
+                T_pose = T_WB
+            ms["vio"][j] = 1e3 * (time.perf_counter() - c0)
+            if T_pose is not None:
+                rec["vio_raw"][j] = T_pose[:3, 3]
+                rec_R[j] = T_pose[:3, :3]
+                T_err_all[j] = T_WB @ np.linalg.inv(T_pose)
 
             # 5. locate
             c0 = time.perf_counter()

@@ -103,40 +103,80 @@ def _offset(recording: Path, sequence: Sequence, config: RunConfig, offsets, off
             "seconds": time.perf_counter() - t0}
 
 
+class _Detections:
+    """The detector's per-frame results as the worker thread publishes them, for the VIO's
+    front end to wait on (:meth:`boxes`)."""
+
+    def __init__(self, n_frames: int, every: int):
+        self.frames: list[ImageDetections | None] = [None] * n_frames
+        self.every = every
+        self._done_upto = -1  # frames below this index are published
+        self._finished = False
+        self._cond = threading.Condition()
+
+    def publish(self, k: int, found: ImageDetections) -> None:
+        with self._cond:
+            self.frames[k] = found
+            self._done_upto = k + 1
+            self._cond.notify_all()
+
+    def finish(self) -> None:
+        with self._cond:
+            self._finished = True
+            self._cond.notify_all()
+
+    def boxes(self, k: int) -> np.ndarray | None:
+        """``(M, 4)`` every box of the last detected frame at or before ``k``, once the
+        detector has reached it; ``None`` when the detector stopped before it."""
+        last = (k // self.every) * self.every
+        with self._cond:
+            self._cond.wait_for(lambda: self._done_upto > last or self._finished)
+            found = self.frames[last] if self._done_upto > last else None
+        return None if found is None else found.boxes
+
+
 def _detect_frames(sequence: Sequence, frames: list[int], detector: Detector, threshold: float,
-                   show: bool, stop: threading.Event):
+                   show: bool, stop: threading.Event, board: _Detections):
     """Step 3, in the worker thread: per left frame the detections above ``threshold``
-    (``None`` where not run), and each detected frame's milliseconds (load + network)."""
+    (``None`` where not run), published to ``board`` as they come, and each detected frame's
+    milliseconds (load + network)."""
     cam0 = sequence.camera("cam0")
-    out: list[ImageDetections | None] = [None] * len(cam0)
     ms = []
     bar = progress_bar(total=len(frames), desc="detect", enabled=show, unit="frame")
-    for k in frames:
-        if stop.is_set():
-            break
-        t0 = time.perf_counter()
-        image = cam0.load(k, "rgb") if detector.needs_images else None
-        found = detector([image], [int(cam0.t_ns[k])])[0]
-        keep = np.asarray(found.scores) >= threshold
-        out[k] = ImageDetections(np.asarray(found.boxes, np.float64)[keep].reshape(-1, 4),
-                                 np.asarray(found.scores, np.float64)[keep],
-                                 np.asarray(found.classes, np.int64)[keep])
-        ms.append(1e3 * (time.perf_counter() - t0))
-        bar.update(1)
-    bar.close()
-    return out, np.asarray(ms)
+    try:
+        for k in frames:
+            if stop.is_set():
+                break
+            t0 = time.perf_counter()
+            image = cam0.load(k, "rgb") if detector.needs_images else None
+            found = detector([image], [int(cam0.t_ns[k])])[0]
+            keep = np.asarray(found.scores) >= threshold
+            board.publish(k, ImageDetections(
+                np.asarray(found.boxes, np.float64)[keep].reshape(-1, 4),
+                np.asarray(found.scores, np.float64)[keep],
+                np.asarray(found.classes, np.int64)[keep]))
+            ms.append(1e3 * (time.perf_counter() - t0))
+            bar.update(1)
+    finally:
+        board.finish()  # a waiting VIO front end must not wait for ever
+        bar.close()
+    return board.frames, np.asarray(ms)
 
 
 def _vio_and_detect(sequence: Sequence, config: RunConfig, offset: np.ndarray,
                     detector: Detector, show: bool):
-    """Steps 2 and 3 at once: the detector in a worker thread beside the VIO."""
-    frames = list(range(0, len(sequence.camera("cam0")), config.detect.every))
+    """Steps 2 and 3 at once: the detector in a worker thread beside the VIO (whose front end
+    waits for each frame's boxes under ``detect.mask_vio``)."""
+    n_frames = len(sequence.camera("cam0"))
+    frames = list(range(0, n_frames, config.detect.every))
+    board = _Detections(n_frames, config.detect.every)
     stop = threading.Event()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="detector") as pool:
         job = pool.submit(_detect_frames, sequence, frames, detector,
-                          config.detect.score_threshold, show, stop)
+                          config.detect.score_threshold, show, stop, board)
         try:
-            vio = run_vio(sequence, config.vio, offset, show_progress=show)
+            vio = run_vio(sequence, config.vio, offset, show_progress=show,
+                          exclude_boxes=board.boxes if config.detect.mask_vio else None)
         except BaseException:
             stop.set()
             raise

@@ -101,6 +101,10 @@ class FrontendConfig:
         fb_threshold_px: a track is kept when tracking it back lands within this distance of
             where it started, pixels (VINS 0.5).
         border_px: tracks closer than this to the image edge are dropped (VINS 1).
+        exclude_margin: the boxes a caller excludes (moving objects: the detector's boxes,
+            :meth:`FeatureTracker.track`'s ``exclude``) grow by this fraction of their size on
+            each side before tracks in them are dropped and no corner is detected there (the
+            object moves and its box lags or misses its edge by a few pixels).
         outlier_method: ``"fundamental"`` (RANSAC on the fundamental matrix of undistorted
             points on a virtual pinhole of focal :data:`NOMINAL_FOCAL_PX`, as VINS-Mono's
             ``rejectWithF``), ``"essential"`` (RANSAC on the essential matrix of normalised
@@ -153,6 +157,7 @@ class FrontendConfig:
     seed_translation_flow: bool = True
     fb_threshold_px: float = 0.5
     border_px: int = 1
+    exclude_margin: float = 0.1
     outlier_method: str = "fundamental"
     estimator: str = "usac"
     ransac_threshold_px: float = 1.0

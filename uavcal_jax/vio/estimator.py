@@ -178,11 +178,11 @@ class StereoVio:
         self._fe_t_ns: int | None = None
         self._published_bias_gyro = np.zeros(3)
 
-    def process(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None
-                ) -> FrameEstimate:
+    def process(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None,
+                exclude: np.ndarray | None = None) -> FrameEstimate:
         """Process one stereo frame (either image may be ``None``: a dropped frame):
         :meth:`track` (seeded at the newest published gyro bias) then :meth:`update`."""
-        return self.update(self.track(t_ns, img_left, img_right, self.flow_bias()))
+        return self.update(self.track(t_ns, img_left, img_right, self.flow_bias(), exclude))
 
     def flow_bias(self) -> np.ndarray:
         """(3,) rad/s, a copy of the newest gyro bias :meth:`update` published (zero before
@@ -190,13 +190,15 @@ class StereoVio:
         return self._published_bias_gyro.copy()
 
     def track(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None,
-              bias_gyro: np.ndarray) -> TrackedFrame:
+              bias_gyro: np.ndarray, exclude: np.ndarray | None = None) -> TrackedFrame:
         """The front end of one frame: the gyro rotation since the previous frame, corrected
         by ``bias_gyro`` (3,) rad/s, seeds the optical flow. Touches only the tracker and the
         front end's own state, so it may run in another thread than :meth:`update` (one
         frame ahead of it: OpenCV and XLA release the GIL). The bias is an argument, not read
         here, so that which estimate seeds the flow is decided by the caller (a snapshot
-        taken when the task is handed out, :meth:`flow_bias`) and not by thread timing."""
+        taken when the task is handed out, :meth:`flow_bias`) and not by thread timing.
+        ``exclude``: (M, 4) left-image boxes of moving objects that no track may lie in
+        (:meth:`~uavcal_jax.vio.frontend.FeatureTracker.track`)."""
         t_ns = int(t_ns)
         t0 = time.perf_counter()
         bias_gyro = np.asarray(bias_gyro, np.float64).reshape(3)
@@ -204,7 +206,7 @@ class StereoVio:
         if self._fe_t_ns is not None and t_ns > self._fe_t_ns:
             R_gyro = self.imu.gyro_rotation(self._fe_t_ns, t_ns, bias_gyro)
         self._fe_t_ns = t_ns
-        feats = self.tracker.track(t_ns * 1e-9, img_left, img_right, R_gyro)
+        feats = self.tracker.track(t_ns * 1e-9, img_left, img_right, R_gyro, exclude)
         return TrackedFrame(t_ns, feats, 1e3 * (time.perf_counter() - t0))
 
     def update(self, frame: TrackedFrame) -> FrameEstimate:

@@ -368,8 +368,17 @@ class FeatureTracker:
 
     # --- the frame ------------------------------------------------------------------------
 
+    def _excluded(self, uv: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+        """(N,) bool: the pixels ``uv (N, 2)`` inside any of ``boxes (M, 4)`` (``x0, y0, x1,
+        y1``, pixel edges) grown by ``exclude_margin`` of their size on each side."""
+        grown = _grow_boxes(boxes, self.config.exclude_margin)
+        inside = ((uv[:, None, 0] >= grown[None, :, 0]) & (uv[:, None, 0] < grown[None, :, 2])
+                  & (uv[:, None, 1] >= grown[None, :, 1]) & (uv[:, None, 1] < grown[None, :, 3]))
+        return inside.any(axis=1)
+
     def track(self, t: float, img_left: np.ndarray, img_right: np.ndarray | None = None,
-              R_prev_curr_gyro: np.ndarray | None = None) -> FrameFeatures:
+              R_prev_curr_gyro: np.ndarray | None = None,
+              exclude: np.ndarray | None = None) -> FrameFeatures:
         """Track one stereo frame.
 
         Args:
@@ -379,6 +388,10 @@ class FeatureTracker:
             R_prev_curr_gyro: (3, 3) body-frame (IMU-frame) rotation from the previous frame
                 to this one, integrated from the gyro: maps body vectors now to the body frame
                 at the previous frame. It seeds the optical flow; ``None``: no prediction.
+            exclude: (M, 4) left-image boxes (``x0, y0, x1, y1``, pixels) of moving objects,
+                or ``None``: tracks inside them (grown by ``exclude_margin``) end and no corner
+                is detected there, so a target that fills the view does not outvote the
+                static scene in the outlier check and the window.
 
         Returns:
             The frame's :class:`FrameFeatures`. Black, blank or textureless images give zero
@@ -403,6 +416,7 @@ class FeatureTracker:
             self.reset()
         t1 = clock()
 
+        boxes = None if exclude is None else np.asarray(exclude, np.float64).reshape(-1, 4)
         pts, ids, age = self._pts, self._ids, self._age
         if len(pts) and self._img is not None:
             guess = back = None
@@ -416,6 +430,9 @@ class FeatureTracker:
             # seed adds it, the camera's velocity changing little in one frame
             trans_flow = (cur - rot).astype(np.float32)
             t2 = clock()
+            if boxes is not None and len(boxes):
+                # before the outlier check: a moving object's corners must not vote in it
+                ok &= ~self._excluded(cur, boxes)
             if ok.any():
                 ok[ok] = reject_outliers(self._undistort(pts[ok], self.K0, self.D0),
                                          self._undistort(cur[ok], self.K0, self.D0), cfg)
@@ -429,6 +446,9 @@ class FeatureTracker:
 
         self._img = img
         keep, mask = self._min_distance_mask(img.shape, pts, age)
+        if boxes is not None:
+            for x0, y0, x1, y1 in np.rint(_grow_boxes(boxes, cfg.exclude_margin)).astype(int):
+                mask[max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)] = 0
         pts, ids, age = pts[keep].reshape(-1, 2), ids[keep], age[keep]
         trans_flow = trans_flow[keep].reshape(-1, 2)
         n_new = cfg.max_features - len(pts)
@@ -491,3 +511,11 @@ class FeatureTracker:
             stereo_mask=pad(st, bool, False),
             age=pad(age, np.int32),
         )
+
+
+def _grow_boxes(boxes: np.ndarray, margin: float) -> np.ndarray:
+    """``boxes (M, 4)`` (``x0, y0, x1, y1``) grown by ``margin`` of their width and height on
+    each side."""
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    pad = margin * np.concatenate([boxes[:, 2:] - boxes[:, :2]] * 2, axis=1)
+    return boxes + pad * np.array([-1.0, -1.0, 1.0, 1.0])

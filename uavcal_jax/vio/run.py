@@ -170,7 +170,8 @@ def _corrected_imu(imu: ImuData, offset: np.ndarray) -> ImuData:
 
 def run_vio(sequence: Sequence, config: VioConfig | None = None,
             imu_offset=None, *, show_progress: bool = False, max_frames: int | None = None,
-            left: str = "cam0", right: str = "cam1", pipelined: bool = True) -> VioResult:
+            left: str = "cam0", right: str = "cam1", pipelined: bool = True,
+            exclude_boxes: Callable[[int], np.ndarray | None] | None = None) -> VioResult:
     """Stereo VIO over ``sequence``.
 
     Args:
@@ -183,6 +184,11 @@ def run_vio(sequence: Sequence, config: VioConfig | None = None,
         show_progress: a progress bar on stderr.  max_frames: stop after this many frames.
         pipelined: run the front end one frame ahead in a worker thread
             (:func:`estimate_stream`); the estimates are identical either way.
+        exclude_boxes: ``(left frame index) -> (M, 4)`` boxes (``x0, y0, x1, y1``, pixels) of
+            moving objects in that left image, or ``None``: no track lies in them (a
+            detector's boxes, so that a target filling the view does not move the world).
+            Called in the front end's thread, in frame order; it may block until the boxes
+            are known.
 
     Raises:
         DataError: no IMU, no IMU calibration, or a camera missing.
@@ -218,7 +224,9 @@ def run_vio(sequence: Sequence, config: VioConfig | None = None,
             img_r = cam1.load(j) if j is not None else None
         except (DataError, OSError):
             img_r = None
-        return t_ns, img_l, img_r
+        if exclude_boxes is None:
+            return t_ns, img_l, img_r
+        return t_ns, img_l, img_r, exclude_boxes(i)
 
     frames = []
     bar = progress(total=len(pairs), desc=f"vio {name}", enabled=show_progress, unit="frame")
@@ -252,14 +260,16 @@ def estimate_stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]],
     """:class:`FrameEstimate` of each input, in order, under :func:`one_blas_thread` (held
     until the generator finishes or is closed).
 
-    ``inputs`` yields callables returning ``(t_ns, left, right)`` (so images load lazily,
-    in the front end's thread). ``pipelined``: the front end of frame ``k + 1`` (loading,
-    :meth:`StereoVio.track`) runs in a worker thread while the back end solves frame ``k``
-    (:meth:`StereoVio.update`) -- two stages on two cores, as VINS-Fusion's threads; each
-    estimate's ``timings["wall"]`` is then the wall-clock time since the previous estimate
-    (the throughput a caller sees). Otherwise the stages alternate in this thread. Either
-    way the front end of frame ``k + 1`` is seeded with the gyro bias published before
-    ``update(k)`` (:meth:`StereoVio.flow_bias`, snapshotted when the task is handed out), so
+    ``inputs`` yields callables returning ``(t_ns, left, right)`` or ``(t_ns, left, right,
+    exclude)`` (so images load lazily, in the front end's thread; ``exclude``: the left
+    image's boxes of moving objects, :meth:`StereoVio.track`). ``pipelined``: the front end
+    of frame ``k + 1`` (loading, :meth:`StereoVio.track`) runs in a worker thread while the
+    back end solves frame ``k`` (:meth:`StereoVio.update`) -- two stages on two cores, as
+    VINS-Fusion's threads; each estimate's ``timings["wall"]`` is then the wall-clock time
+    since the previous estimate (the throughput a caller sees). Otherwise the stages
+    alternate in this thread. Either way the front end of frame ``k + 1`` is seeded with the
+    gyro bias published before ``update(k)`` (:meth:`StereoVio.flow_bias`, snapshotted when
+    the task is handed out), so
     both modes give identical estimates, run after run.
     """
     with one_blas_thread():
@@ -273,7 +283,8 @@ def _stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]], pipelined: bo
     # when the task is handed out (not reading it while update(k) writes it) makes a run
     # reproducible and the two modes identical.
     def front(load, bias_gyro):
-        return vio.track(*load(), bias_gyro)
+        t_ns, left, right, *exclude = load()
+        return vio.track(t_ns, left, right, bias_gyro, *exclude)
 
     last = time.perf_counter()
     if not pipelined:
