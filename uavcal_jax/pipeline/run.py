@@ -47,7 +47,7 @@ from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.track import UNSEEN, Setpoint, follow_setpoints
 from uavcal_jax.vio.run import VioResult, run_vio
 
-__all__ = ["RunResult", "run_pipeline"]
+__all__ = ["DetectionBoard", "RunResult", "run_pipeline"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,7 +103,7 @@ def _offset(recording: Path, sequence: Sequence, config: RunConfig, offsets, off
             "seconds": time.perf_counter() - t0}
 
 
-class _Detections:
+class DetectionBoard:
     """The detector's per-frame results as the worker thread publishes them, for the VIO's
     front end to wait on (:meth:`boxes`)."""
 
@@ -136,7 +136,7 @@ class _Detections:
 
 
 def _detect_frames(sequence: Sequence, frames: list[int], detector: Detector, threshold: float,
-                   show: bool, stop: threading.Event, board: _Detections):
+                   show: bool, stop: threading.Event, board: DetectionBoard):
     """Step 3, in the worker thread: per left frame the detections above ``threshold``
     (``None`` where not run), published to ``board`` as they come, and each detected frame's
     milliseconds (load + network)."""
@@ -169,7 +169,7 @@ def _vio_and_detect(sequence: Sequence, config: RunConfig, offset: np.ndarray,
     waits for each frame's boxes under ``detect.mask_vio``)."""
     n_frames = len(sequence.camera("cam0"))
     frames = list(range(0, n_frames, config.detect.every))
-    board = _Detections(n_frames, config.detect.every)
+    board = DetectionBoard(n_frames, config.detect.every)
     stop = threading.Event()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="detector") as pool:
         job = pool.submit(_detect_frames, sequence, frames, detector,
