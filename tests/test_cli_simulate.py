@@ -57,6 +57,7 @@ OPTION_FIELDS = {
     "gain": "gain", "sensor_noise": "sensor_noise", "blur_samples": "blur_samples",
     "batch": "batch_size", "workers": "png_workers", "body_frame": "body_frame",
     "camera_pitch": "camera_pitch_deg", "follow_targets": "follow_targets",
+    "imu_rotation": "imu_rotation_deg",
 }  # fmt: skip
 
 
@@ -124,6 +125,41 @@ def test_imu_offset_is_added_to_the_written_imu(capsys, tmp_path):
     # the CSV holds round-trip reprs: the difference is the offset to float64 rounding
     np.testing.assert_allclose(miscal[:, 1:] - clean[:, 1:],
                                np.broadcast_to(offset, clean[:, 1:].shape), rtol=0, atol=1e-13)
+
+
+def test_imu_rotation_turns_the_imu_and_keeps_the_flight_and_frames(capsys, tmp_path):
+    """``--imu-rotation``: the same flight seen by the same cameras (frames identical), the
+    IMU's samples and the ground truth's orientations in the turned frame (``R_WI = R_WB
+    R_BI``, samples ``R_BI^T`` of the old ones), the cameras' ``T_BS`` to match."""
+    from scipy.spatial.transform import Rotation
+
+    rotvec_deg = (0.0, -90.0, 30.0)
+    common = ["--duration", "0.3", "--resolution", "64x40", "--no-imu-noise", "--no-depth",
+              "--seed", "3", "--json"]
+    code, _, err = _run(capsys, "simulate", "--out", str(tmp_path / "a"), *common)
+    assert code == 0, err
+    code, _, err = _run(capsys, "simulate", "--out", str(tmp_path / "b"), *common,
+                        "--imu-rotation=" + ",".join(map(str, rotvec_deg)))
+    assert code == 0, err
+    R_BI = Rotation.from_rotvec(np.radians(rotvec_deg)).as_matrix()
+    a, b = read_euroc(tmp_path / "a"), read_euroc(tmp_path / "b")
+    np.testing.assert_allclose(b.imu.gyro, a.imu.gyro @ R_BI, atol=1e-9)
+    np.testing.assert_allclose(b.imu.accel, a.imu.accel @ R_BI, atol=1e-9)
+    np.testing.assert_allclose(b.ground_truth.position, a.ground_truth.position, atol=1e-9)
+    R_a = Rotation.from_quat(a.ground_truth.quaternion[:, [1, 2, 3, 0]]).as_matrix()
+    R_b = Rotation.from_quat(b.ground_truth.quaternion[:, [1, 2, 3, 0]]).as_matrix()
+    np.testing.assert_allclose(R_b, R_a @ R_BI, atol=1e-9)
+    for cam in ("cam0", "cam1"):
+        T_a, T_b = a.camera(cam).calibration.T_BS, b.camera(cam).calibration.T_BS
+        np.testing.assert_allclose(T_b[:3, :3], R_BI.T @ T_a[:3, :3], atol=1e-12)
+        np.testing.assert_allclose(T_b[:3, 3], R_BI.T @ T_a[:3, 3], atol=1e-12)
+        for k in range(len(a.camera(cam))):
+            np.testing.assert_array_equal(a.camera(cam).load(k), b.camera(cam).load(k))
+    resolved = json.loads((tmp_path / "b" / "sim_config.json").read_text())
+    assert resolved["config"]["imu_rotation_deg"] == list(rotvec_deg)
+    code, _, err = _run(capsys, "simulate", "--out", str(tmp_path / "c"),
+                        "--imu-rotation", "1,2")
+    assert code == 2 and "X,Y,Z" in err
 
 
 @pytest.mark.parametrize("bad", ["1,2,3,4,5", "1,2,3,4,5,6,7", "nan,0,0,0,0,0",

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from typing import Any
 
 import numpy as np
 
-__all__ = ["fraction", "parse_imgsz", "parse_offset", "parse_resolution", "positive",
+__all__ = ["fraction", "parse_imgsz", "parse_offset", "parse_resolution", "parse_vector3",
+           "positive",
            "positive_int", "print_json", "to_builtin"]
 
 
@@ -59,6 +61,19 @@ def parse_offset(text: str) -> tuple[float, ...]:
     if not np.all(np.isfinite(values)):
         raise argparse.ArgumentTypeError(f"offset values must be finite, got {text!r}")
     return values
+
+
+def parse_vector3(text: str) -> tuple[float, float, float]:
+    """``"X,Y,Z"`` -> 3 finite floats (``--option=-1,...`` when the first is negative)."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 3 comma-separated numbers X,Y,Z, got "
+                                         f"{text!r}") from None
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected 3 finite comma-separated numbers X,Y,Z, "
+                                         f"got {text!r}")
+    return values  # type: ignore[return-value]
 
 
 def positive(text: str) -> float:

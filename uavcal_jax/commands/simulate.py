@@ -12,6 +12,7 @@ from pathlib import Path
 from uavcal_jax.argtypes import (
     parse_offset,
     parse_resolution,
+    parse_vector3,
     positive,
     positive_int,
     print_json,
@@ -101,6 +102,12 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
                         "forward, 45 as UZH-FPV's 45-degree flights, 90 straight down; the "
                         "cameras' T_BS in sensor.yaml are the pitched ones [default: EuRoC's "
                         "rig, cam0 19.8 degrees below forward]")
+    g.add_argument("--imu-rotation", type=parse_vector3, default=_D.imu_rotation_deg,
+                   metavar="RX,RY,RZ",
+                   help="turn the IMU on the airframe by this rotation vector (degrees, in the "
+                        "IMU frame it had): the same flight and frames, the IMU and the ground "
+                        "truth in the turned frame, sensor.yaml's T_BS to match (another "
+                        "drone's mounting, e.g. 0,-90,0 puts gravity on z) [default: none]")
     g.add_argument("--camera-rate", type=positive, default=_D.camera_rate_hz, metavar="HZ",
                    help=f"frame rate of cam0/cam1 [default: {_D.camera_rate_hz:g}]")
     g.add_argument("--imu-rate", type=positive, default=_D.imu_rate_hz, metavar="HZ",
@@ -172,6 +179,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         duration=float(args.duration),
         body_frame=args.body_frame,
         camera_pitch_deg=args.camera_pitch,
+        imu_rotation_deg=args.imu_rotation,
         resolution=tuple(args.resolution),
         color=args.color,
         seed=int(args.seed),

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from uavcal_jax.data.euroc_rig import EUROC_RATE_HZ, EUROC_RESOLUTION, euroc_calibration
 from uavcal_jax.data.sequence import CameraCalibration
@@ -31,6 +32,7 @@ __all__ = [
     "COLORS",
     "SimConfig",
     "camera_calibrations",
+    "imu_rotation",
     "scale_calibration",
     "sensor_model",
     "stage_seeds",
@@ -71,6 +73,13 @@ class SimConfig:
             it is, whose cam0 looks 19.8 degrees below forward (cam1 19.0) when the IMU sits
             as on EuRoC's MAV. For a ``"euroc"`` trajectory the quadrotor's axes are those of
             EuRoC's MAV mounting (:func:`uavcal_jax.data.euroc_rig.euroc_imu_mounting`).
+        imu_rotation_deg: ``None``, or a rotation vector (3 numbers, degrees) that turns the
+            IMU on the airframe: the recording's body frame is the turned IMU's, ``R_BI =
+            exp(imu_rotation_deg)`` in the frame it had (:func:`imu_rotation`). The motion,
+            the cameras' world poses and so the frames are unchanged; the IMU's samples, the
+            ground truth's orientations and the cameras' ``T_BS`` are expressed in the turned
+            frame. Other drones hold their IMU in other orientations (gravity on z rather than
+            EuRoC's x): this makes such a recording from any flight.
         resolution: ``(width, height)`` of the frames; other than EuRoC's 752x480, the EuRoC
             intrinsics are scaled to keep the field of view.
         color: ``"gray"`` (8-bit single channel, like EuRoC) or ``"rgb"``.
@@ -114,6 +123,7 @@ class SimConfig:
     duration: float = 10.0
     body_frame: str = BODY_FRAMES[0]
     camera_pitch_deg: float | None = None
+    imu_rotation_deg: tuple[float, float, float] | None = None
     resolution: tuple[int, int] = EUROC_RESOLUTION
     color: str = COLORS[0]
     seed: int = 0
@@ -141,6 +151,9 @@ class SimConfig:
             object.__setattr__(self, "trajectory", os.fspath(self.trajectory))
         if self.camera_pitch_deg is not None:
             object.__setattr__(self, "camera_pitch_deg", float(self.camera_pitch_deg))
+        if self.imu_rotation_deg is not None:
+            object.__setattr__(self, "imu_rotation_deg",
+                               tuple(float(v) for v in self.imu_rotation_deg))
         if self.imu_offset is not None:
             # a tuple of floats whatever sequence was given (hashable, JSON-ready, and equal
             # to the parsed command-line value); the count is checked by validate()
@@ -181,6 +194,10 @@ class SimConfig:
                 len(self.imu_offset) == 6 and np.all(np.isfinite(self.imu_offset))):
             raise ValueError("imu_offset must be 6 finite numbers (gyro rad/s xyz, accel m/s^2 "
                              f"xyz), got {self.imu_offset}")
+        if self.imu_rotation_deg is not None and not (
+                len(self.imu_rotation_deg) == 3 and np.all(np.isfinite(self.imu_rotation_deg))):
+            raise ValueError("imu_rotation_deg must be 3 finite numbers (a rotation vector, "
+                             f"degrees), got {self.imu_rotation_deg}")
         if self.batch_size < 1 or self.png_workers < 1:
             raise ValueError("batch_size and png_workers must be >= 1")
 
@@ -189,6 +206,8 @@ class SimConfig:
         d = dataclasses.asdict(self)
         d["resolution"] = list(self.resolution)
         d["imu_offset"] = None if self.imu_offset is None else list(self.imu_offset)
+        d["imu_rotation_deg"] = (None if self.imu_rotation_deg is None
+                                 else list(self.imu_rotation_deg))
         return d
 
 
@@ -209,13 +228,25 @@ def scale_calibration(calib: CameraCalibration, resolution: tuple[int, int]) -> 
     return dataclasses.replace(calib, intrinsics=intr, resolution=(w, h))
 
 
+def imu_rotation(config: SimConfig) -> np.ndarray:
+    """(3, 3) ``R_BI``: the turned IMU's axes in the frame it had (``imu_rotation_deg``; the
+    identity when ``None``)."""
+    if config.imu_rotation_deg is None:
+        return np.eye(3)
+    return Rotation.from_rotvec(np.radians(config.imu_rotation_deg)).as_matrix()
+
+
 def camera_calibrations(config: SimConfig) -> dict[str, CameraCalibration]:
     """EuRoC cam0/cam1 at the configured resolution and frame rate; with
     ``camera_pitch_deg`` their ``T_BS`` are the pitched rig's
-    (:func:`uavcal_jax.sim.mounting.pitched_rig`), the extrinsics the frames are rendered
-    with and ``sensor.yaml`` states."""
+    (:func:`uavcal_jax.sim.mounting.pitched_rig`), and with ``imu_rotation_deg`` expressed
+    in the turned IMU's frame: the extrinsics the frames are rendered with and
+    ``sensor.yaml`` states."""
     T_BS = pitched_rig([euroc_calibration(i).T_BS for i in range(len(CAMERAS))],
                        config.camera_pitch_deg)
+    T_IB = np.eye(4)
+    T_IB[:3, :3] = imu_rotation(config).T  # the rig in the turned IMU's frame
+    T_BS = [T_IB @ T for T in T_BS]
     out = {}
     for i, name in enumerate(CAMERAS):
         calib = scale_calibration(euroc_calibration(i), config.resolution)

@@ -197,7 +197,8 @@ def simulate_hybrid(real: str | Path, out_dir: str | Path, config: SimConfig | N
         out_dir: the output folder; must not exist or be empty unless ``overwrite``.
         config: the simulator's settings (frames, camera, seed, ``imu_offset``; default
             :class:`SimConfig`). ``trajectory`` is ignored, ``imu_noise`` does not apply (the
-            noise is real) and ``imu_rate_hz`` becomes the real IMU's rate.
+            noise is real), ``imu_rotation_deg`` is refused (the real IMU is where it was
+            mounted) and ``imu_rate_hz`` becomes the real IMU's rate.
         start: seconds after the real IMU's first sample (default ``config.start``).
         duration: seconds (default ``config.duration``).
         progress: a progress bar on stderr.
@@ -221,6 +222,9 @@ def simulate_hybrid(real: str | Path, out_dir: str | Path, config: SimConfig | N
         duration=config.duration if duration is None else float(duration),
         imu_rate_hz=float(seq.imu_calibration.rate_hz))
     config.validate()
+    if config.imu_rotation_deg is not None:
+        raise ValueError("imu_rotation_deg does not apply to a hybrid recording (the real "
+                         "IMU is where it was mounted)")
     ratio = config.imu_rate_hz / config.camera_rate_hz
     if abs(ratio - round(ratio)) > 1e-9:
         raise ValueError(f"camera_rate_hz {config.camera_rate_hz:g} must divide the real IMU's "

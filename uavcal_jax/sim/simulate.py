@@ -73,7 +73,7 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.imu.noise import EUROC_ADIS16448
 from uavcal_jax.imu.offset import add_offset
 from uavcal_jax.sim import imu_synth
-from uavcal_jax.sim.config import SimConfig, camera_calibrations, stage_seeds
+from uavcal_jax.sim.config import SimConfig, camera_calibrations, imu_rotation, stage_seeds
 from uavcal_jax.sim.flights import procedural_flight
 from uavcal_jax.sim.frames import render_frames
 from uavcal_jax.sim.trajectory import Trajectory
@@ -171,6 +171,9 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
         info = {"source": str(path.resolve()), "file_first_t_ns": first_ns,
                 "file_last_t_ns": last_ns, "start_s_after_first": float(config.start),
                 "body_frame": config.body_frame, "trajectory_fit": fit.to_dict()}
+    if config.imu_rotation_deg is not None:
+        # the IMU turned on the airframe: the body frame is the turned IMU's
+        traj = mount_imu(traj, imu_rotation(config))
     t_ns = t0_ns + period_ns * np.arange(n, dtype=np.int64)
     return traj, t_ns, info
 
