@@ -23,6 +23,10 @@ from uavcal_jax.sim.simulate import simulate
 __all__ = ["cached_simulation", "config_tag", "trajectory_span"]
 
 
+#: SimConfig fields added after caches were tagged, left out of the tag while ``None``.
+_LATER_FIELDS = ("imu_rotation_deg",)
+
+
 def config_tag(config: SimConfig) -> str:
     """8 hex digits identifying every field of ``config`` (the ``png_workers`` and
     ``batch_size`` speed knobs excluded: they do not change the output)."""
@@ -30,6 +34,9 @@ def config_tag(config: SimConfig) -> str:
                                                                       "batch_size")}
     if fields.get("trajectory"):
         fields["trajectory"] = Path(fields["trajectory"]).name
+    for later in _LATER_FIELDS:  # added since caches were written: unset, they keep the tag
+        if fields.get(later) is None:
+            fields.pop(later, None)
     text = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:8]
 
