@@ -29,6 +29,20 @@ def test_rendered_once_then_reused_and_keyed_by_config(tmp_path):
     assert cached_simulation(other, tmp_path, "tiny", progress=False) != first
 
 
+def test_a_later_field_unset_keeps_the_tag_and_set_changes_it():
+    """``imu_rotation_deg`` came after caches were tagged: unset, the tag is the hash of the
+    other fields (the folders written before stay valid); set, it is another folder."""
+    import hashlib
+
+    fields = {k: v for k, v in TINY.to_dict().items()
+              if k not in ("png_workers", "batch_size", "imu_rotation_deg")}
+    before = hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:8]
+    assert config_tag(TINY) == before
+    turned = SimConfig(**{**TINY.to_dict(), "resolution": (32, 24),
+                          "imu_rotation_deg": (0.0, -90.0, 0.0)})
+    assert config_tag(turned) != before
+
+
 def test_a_killed_render_is_not_reused(tmp_path):
     out = tmp_path / f"tiny_{config_tag(TINY)}"
     (out / "mav0").mkdir(parents=True)  # a folder without sim_config.json: not complete
