@@ -6,7 +6,8 @@
   752x480 frame, and scaled to a 60 s sequence at 20 Hz.
 - :func:`bench_motion_model`: a preset's model with ``model.motion_tokens`` and the
   ``rotation_ls`` closed form against the same model without them, timed in turn (one call
-  of each, ``repeats`` rounds after two of warm-up): one window, and the
+  of each, ``repeats`` rounds after two of warm-up; the windows, then the sequences): one
+  window, and the
   windows of a 60 s sequence from frame tokens (:func:`uavcal_jax.calib.inference.
   predict_windows`, the frames encoded once, the encoding's cost is the same either way).
 
@@ -93,18 +94,19 @@ def bench_motion_model(config: CalibConfig, window: dict, tokens_index, sequence
         calls[name] = (lambda c=compiled, a=args: c(*a),
                        lambda a=seq_args: inference.predict_windows(*a))
         out[name] = {"window_compile_s": round(compile_s, 2)}
-    # interleaved, one call of each in turn: this machine's speed drifts by a quarter
-    walls = {name: ([], []) for name in calls}
-    for r in range(repeats + 2):
-        for name, (window_call, seq_call) in calls.items():
-            w = time_calls(window_call, repeats=1, warmup=1 if r == 0 else 0).wall_s
-            q = time_calls(seq_call, repeats=1, warmup=1 if r == 0 else 0).wall_s
-            if r >= 2:  # two rounds of warm-up
-                walls[name][0].extend(w)
-                walls[name][1].extend(q)
-    for name, (w, q) in walls.items():
-        out[name].update(window_ms=round(1e3 * median(w), 2),
-                         sequence_predict_s=round(median(q), 4))
+    # interleaved, one call of each model in turn (this machine's speed drifts by a quarter);
+    # the windows first, then the sequences: a sequence's large temporaries between two
+    # window calls would make each window fault its memory in anew
+    for kind, (key, scale, digits) in enumerate((("window_ms", 1e3, 2),
+                                                 ("sequence_predict_s", 1.0, 4))):
+        walls: dict[str, list[float]] = {name: [] for name in calls}
+        for r in range(repeats + 2):
+            for name, pair in calls.items():
+                wall = time_calls(pair[kind], repeats=1, warmup=1 if r == 0 else 0).wall_s
+                if r >= 2:  # two rounds of warm-up
+                    walls[name].extend(wall)
+        for name, wall in walls.items():
+            out[name][key] = round(scale * median(wall), digits)
     out["window_extra_ms"] = round(out["motion"]["window_ms"] - out["plain"]["window_ms"], 2)
     out["sequence_extra_s"] = round(out["motion"]["sequence_predict_s"]
                                     - out["plain"]["sequence_predict_s"], 4)

@@ -305,3 +305,19 @@ def test_rotation_window_mean_takes_the_gyro_from_rotations_and_the_rest_from_th
     np.testing.assert_allclose(forms["window_mean"], expected, rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError, match="motion_tokens"):
         ModelConfig(closed_form="rotation_window_mean")
+
+
+def test_mounting_angle_is_zero_as_trained_and_a_quarter_turn_for_another_mounting():
+    """``mounting_angle_deg``: a recording's mean specific force against the training mean
+    (EuRoC's IMU: gravity on x); the transformer method warns past 30 degrees."""
+    from uavcal_jax.calib.predict import mounting_angle_deg
+    from uavcal_jax.pipeline.transformer_offset import MOUNTING_TOLERANCE_DEG
+
+    rng = np.random.default_rng(0)
+    trained = np.array([9.7, 0.3, -1.2])
+    accel = trained + rng.normal(0.0, 2.0, (4000, 3))  # flight accelerations average out
+    assert mounting_angle_deg(accel, trained) < 5.0
+    turned = accel @ Rotation.from_rotvec([0.0, -np.pi / 2, 0.0]).as_matrix()
+    assert 80.0 < mounting_angle_deg(turned, trained) < 100.0
+    assert MOUNTING_TOLERANCE_DEG < 80.0
+    np.testing.assert_allclose(mounting_angle_deg(-accel, trained), 180.0, atol=5.0)

@@ -33,6 +33,11 @@ class DataRepairWarning(UserWarning):
     """Input was repaired (rows dropped, frames skipped, values clipped); the message says how."""
 
 
+class OutOfDomainWarning(UserWarning):
+    """A learned estimator meets data unlike what it was trained on (the message says how it
+    differs and what to use instead); its output is unreliable."""
+
+
 class FlightLimitWarning(UserWarning):
     """A flight exceeds what a drone can fly (the message gives the peak and the limit); the
     recording is written, but its IMU is probably not a real one's."""

@@ -38,6 +38,7 @@ from uavcal_jax.data.windows import WindowSet, make_windows
 from uavcal_jax.errors import DataError
 
 __all__ = ["SequencePrediction", "channel_names", "expand_to_six", "model_channels",
+           "mounting_angle_deg",
            "predict_on_sequence", "predict_recording", "predict_sequence"]
 
 GYRO_CHANNELS = ("gx", "gy", "gz")
@@ -148,6 +149,17 @@ def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
                               np.asarray(windows.start_ns, np.int64))
 
 
+def mounting_angle_deg(accel: np.ndarray, training_mean: np.ndarray) -> float:
+    """Degrees between a recording's mean specific force (``accel (N, 3)`` m/s^2, IMU frame:
+    gravity's reaction, flight accelerations averaging out) and a calibrator's training mean
+    (3,): about 0 for an IMU mounted as in the training flights, 90 for one turned a quarter
+    (gravity on z rather than EuRoC's x)."""
+    a = np.mean(np.asarray(accel, np.float64).reshape(-1, 3), axis=0)
+    b = np.asarray(training_mean, np.float64).reshape(3)
+    cos = a @ b / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
 def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = "best",
                         run: CalibRunConfig | None = None, inject_offset=None,
                         rotation_source: Callable[[Path], Any] | None = None
@@ -188,8 +200,13 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     pick = model_channels(run.model.imu_channels, sensor)
     shift = None if inject_offset is None else np.asarray(inject_offset, np.float64)[pick]
     prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
+    train_mean = np.asarray(jax.device_get(
+        (jax.tree.map(lambda x: x[0], state) if seeds > 1 else state).imu_stats.mean))
+    angle = (None if train_mean.shape[-1] != 6 or sequence.imu is None else
+             mounting_angle_deg(sequence.imu.accel, train_mean[3:]))
     info = {
         "run": str(run_dir), "kind": kind, "seeds": seeds, "sensor": sensor,
+        "gravity_angle_deg": angle,
         "channels": list(prediction.channels),
         "frame_encoder_dtype": state.config.model.frame_encoder_dtype,
         "window_s": window.duration, "stride_s": window.stride,
