@@ -117,8 +117,7 @@ from uavcal_jax.calib.trials import (
 )
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
-from uavcal_jax.pipeline.offset_scores import NO_CORRECTION, pooled_scores
-from uavcal_jax.pipeline.predict_offset import predict_offset
+from uavcal_jax.pipeline.offset_scores import NO_CORRECTION, pooled_scores, score_recordings
 from uavcal_jax.plots import plot_offsets
 from uavcal_jax.xla_cache import enable_compilation_cache
 
@@ -306,19 +305,16 @@ def _blind_trial(t: dict, n_offsets: int, quiet: bool) -> dict:
     offset plus the sensor's own bias over the span the estimate used): per method its
     :data:`HEADLINE` numbers pooled over the recordings and offsets (``None`` for a sensor
     it does not estimate), ``seconds`` and the ``rows``."""
+    key_of = {method: key for key, method in BLIND_METHODS.items()}
     rows = []
-    for part in t["val"]:
-        for j, offset in enumerate(t["offsets"][:n_offsets]):
-            for key, method in BLIND_METHODS.items():
-                t0 = time.perf_counter()
-                summary, _ = predict_offset(part.source, method,
-                                            inject=np.asarray(offset, np.float64))
-                rows.append({"recording": f"{part.source}#{j}", "method": key,
-                             "channels": summary["channels"], "offset": summary["offset"],
-                             "true": summary["true"], "error": summary["error"],
-                             "seconds": round(time.perf_counter() - t0, 1)})
-                log(quiet, f"  {key} on {Path(part.source).name}, offset {j}: error "
-                           f"{np.round(summary['error'], 4).tolist()} ({rows[-1]['seconds']} s)")
+    for j, offset in enumerate(t["offsets"][:n_offsets]):
+        scored = score_recordings([part.source for part in t["val"]], BLIND_METHODS.values(),
+                                  inject=np.asarray(offset, np.float64))
+        for r in scored:  # one truth per recording and offset in pooled_scores
+            rows.append({**r, "recording": f"{r['recording']}#{j}",
+                         "method": key_of[r["method"]]})
+            log(quiet, f"  {rows[-1]['method']} on {Path(r['recording']).name}, offset {j}: "
+                       f"error {np.round(r['error'], 4).tolist()} ({r['seconds']} s)")
     out = {}
     for key, score in pooled_scores(rows).items():
         if key == NO_CORRECTION:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from typing import Any
 
 import numpy as np
@@ -44,36 +43,32 @@ def parse_imgsz(text: str) -> tuple[int, int]:
     return h, w
 
 
+def _comma_floats(text: str, names: str, what: str) -> tuple[float, ...]:
+    """``text`` as the finite floats named by ``names`` (``"X,Y,Z"``: 3 of them)."""
+    n = names.count(",") + 1
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected {n} comma-separated numbers {names}, got {text!r}") from None
+    if len(values) != n:
+        raise argparse.ArgumentTypeError(
+            f"expected {n} comma-separated numbers {names}, got {len(values)} in {text!r}")
+    if not np.all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"{what} values must be finite, got {text!r}")
+    return values
+
+
 def parse_offset(text: str) -> tuple[float, ...]:
     """``"GX,GY,GZ,AX,AY,AZ"`` -> an IMU offset, 6 finite floats (gyro rad/s xyz, accel m/s^2
     xyz, the order of :mod:`uavcal_jax.imu.offset`). A first value below zero needs the
     ``--option=-0.01,...`` form (argparse takes a lone ``-0.01,...`` for an option)."""
-    parts = text.split(",")
-    try:
-        values = tuple(float(v) for v in parts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected 6 comma-separated numbers GX,GY,GZ,AX,AY,AZ, got {text!r}") from None
-    if len(values) != 6:
-        raise argparse.ArgumentTypeError(
-            f"expected 6 comma-separated numbers GX,GY,GZ,AX,AY,AZ, got {len(values)} in "
-            f"{text!r}")
-    if not np.all(np.isfinite(values)):
-        raise argparse.ArgumentTypeError(f"offset values must be finite, got {text!r}")
-    return values
+    return _comma_floats(text, "GX,GY,GZ,AX,AY,AZ", "offset")
 
 
 def parse_vector3(text: str) -> tuple[float, float, float]:
     """``"X,Y,Z"`` -> 3 finite floats (``--option=-1,...`` when the first is negative)."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected 3 comma-separated numbers X,Y,Z, got "
-                                         f"{text!r}") from None
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected 3 finite comma-separated numbers X,Y,Z, "
-                                         f"got {text!r}")
-    return values  # type: ignore[return-value]
+    return _comma_floats(text, "X,Y,Z", "vector")  # type: ignore[return-value]
 
 
 def positive(text: str) -> float:

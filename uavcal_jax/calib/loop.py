@@ -68,6 +68,7 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress as progress_bar
 
 __all__ = ["INFERENCE_KEYS", "RUN_CONFIG_FILE", "FitResult", "epoch_order", "evaluate",
+           "first_seed",
            "export_weights", "fit", "mean_offset_baseline", "read_run_config",
            "resolved_config", "restore_run", "validation_draws"]
 
@@ -122,11 +123,17 @@ def epoch_order(root: jax.Array, epoch: int, n: int) -> np.ndarray:
     return np.asarray(jax.random.permutation(key, n))
 
 
+def first_seed(state: CalibState, seeds: int) -> CalibState:
+    """The first seed's state of a vmapped ``state`` (``seeds > 1``), else ``state``: what
+    every seed shares (configuration, training statistics) is read from it."""
+    return jax.tree.map(lambda x: x[0], state) if seeds > 1 else state
+
+
 def mean_offset_baseline(state: CalibState, seeds: int) -> jax.Array:
     """The mean-offset baseline ``(C,)``: the mean of :data:`BASELINE_DRAWS` training offsets
     drawn by the run's protocol from its training statistics (the first seed's: all seeds
     share them)."""
-    s = jax.tree.map(lambda x: x[0], state) if seeds > 1 else state
+    s = first_seed(state, seeds)
     key = jax.random.fold_in(_root(s.config), _BASELINE)
     return mean_offset(training_offsets(key, s.config.injection, s.imu_stats, BASELINE_DRAWS))
 
@@ -155,7 +162,7 @@ def _window_means(batch: dict) -> np.ndarray:
 def validation_draws(state: CalibState, seeds: int, draws: int) -> np.ndarray:
     """``(draws, C)`` validation offsets drawn from ``(seed, "val")`` by the run's protocol
     and training statistics (the first seed's: all seeds share them)."""
-    s0 = jax.tree.map(lambda x: x[0], state) if seeds > 1 else state
+    s0 = first_seed(state, seeds)
     key = jax.random.fold_in(_root(s0.config), _VAL)
     if draws == 1:  # the paper's one offset of a trial
         return np.asarray(validation_offsets(key, s0.config.injection, s0.imu_stats, 1))
@@ -182,7 +189,7 @@ def evaluate(state: CalibState, parts: list[Windows], seeds: int, *,
     ``baseline_mean_offset`` (the training offsets' mean) and ``baseline_window_mean`` (each
     window's mean IMU sample minus the training set's, no learning) -- ``offsets (K, C)`` and
     ``windows``."""
-    s0 = jax.tree.map(lambda x: x[0], state) if seeds > 1 else state
+    s0 = first_seed(state, seeds)
     config = s0.config
     n = int(sum(len(p.indices) for p in parts))
     if offsets is None:

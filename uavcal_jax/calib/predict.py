@@ -29,7 +29,7 @@ from uavcal_jax.calib.config import CalibRunConfig
 from uavcal_jax.calib.data import Windows, find_sequences, mask_black_frames
 from uavcal_jax.calib.inference import encode_frames, predict_windows
 from uavcal_jax.calib.inject import inject
-from uavcal_jax.calib.loop import read_run_config, restore_run
+from uavcal_jax.calib.loop import first_seed, read_run_config, restore_run
 from uavcal_jax.calib.train import CalibState
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.sequence import Sequence
@@ -200,8 +200,7 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     pick = model_channels(run.model.imu_channels, sensor)
     shift = None if inject_offset is None else np.asarray(inject_offset, np.float64)[pick]
     prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
-    train_mean = np.asarray(jax.device_get(
-        (jax.tree.map(lambda x: x[0], state) if seeds > 1 else state).imu_stats.mean))
+    train_mean = np.asarray(jax.device_get(first_seed(state, seeds).imu_stats.mean))
     angle = (None if train_mean.shape[-1] != 6 or sequence.imu is None else
              mounting_angle_deg(sequence.imu.accel, train_mean[3:]))
     info = {

@@ -31,8 +31,8 @@ NO_CORRECTION = "no correction"
 
 
 def score_recordings(recordings: Iterable[str | Path], methods: Iterable[str], *,
-                     options: Mapping[str, Any] | None = None, progress: bool = False
-                     ) -> list[dict]:
+                     options: Mapping[str, Any] | None = None, inject=None,
+                     progress: bool = False) -> list[dict]:
     """One row per recording and method: ``recording``, ``method``, ``channels``, ``offset``
     and ``true`` (in those channels), ``error`` and ``seconds``. Recordings whose truth is
     unknown (no ``true``) are scored ``None``.
@@ -41,6 +41,8 @@ def score_recordings(recordings: Iterable[str | Path], methods: Iterable[str], *
         recordings: EuRoC/ASL folders (or bags) with ground truth, e.g. simulated ones.
         methods: registered method names.
         options: per method, its options (default: the method's defaults).
+        inject: ``(6,)`` a constant added to every recording's IMU first (and to its truth),
+            or ``None`` (:func:`~uavcal_jax.pipeline.predict_offset.predict_offset`).
         progress: progress bars for long work.
     """
     import time
@@ -51,7 +53,7 @@ def score_recordings(recordings: Iterable[str | Path], methods: Iterable[str], *
         for method in methods:
             t0 = time.perf_counter()
             summary, _ = predict_offset(recording, method, (options or {}).get(method),
-                                        progress=progress)
+                                        inject=inject, progress=progress)
             rows.append({"recording": str(recording), "method": method,
                          "channels": summary["channels"], "offset": summary["offset"],
                          "true": summary["true"], "error": summary["error"],
