@@ -64,7 +64,8 @@ def test_static_target_gives_exact_distance_height_and_yaw():
 def test_one_step_is_the_desired_position_when_within_reach():
     target, drone = np.array([0.0, 0.0, 1.0]), np.array([3.0, 4.0, 3.0])  # 5 m away
     prev = W.Setpoint(jnp.asarray(drone), jnp.asarray(0.0))
-    sp = W.follow_step(prev, target, True, drone, 1.0, W.FollowConfig(max_speed=10.0))
+    config = W.FollowConfig(distance=4.0, height=2.0, max_speed=10.0)
+    sp = W.follow_step(prev, target, True, drone, 1.0, config)
     np.testing.assert_allclose(np.asarray(sp.position), [0.8 * 3.0, 0.8 * 4.0, 3.0], atol=1e-6)
     # yaw faces the target from the drone's actual position, limited to 1 rad/s for 1 s
     want = _bearing(drone, target)

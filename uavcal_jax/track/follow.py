@@ -44,15 +44,20 @@ class FollowConfig:
 
     Attributes:
         distance: horizontal stand-off from the target, metres.
-        height: height above the target's centre, metres.
+        height: height above the target's centre, metres. The defaults (6 m, 3 m: 26.6
+            degrees below the horizon, the centre of a rig pitched 30 degrees down) keep a
+            4.2 m car whole in a EuRoC-lens view; at 4 m and 2 m its near end leaves the
+            image's bottom edge, and a detector's boxes of a cut car place it 0.25 m too near
+            (the closed loop's distance error was 0.63 m, against 0.26 m at 6 m and 3 m).
+            PX4's follow-target mode defaults to 8 m and 8 m.
         max_speed: the position set-point moves at most this fast, m/s.
         max_yaw_rate: the yaw set-point turns at most this fast, rad/s.
         min_yaw_distance: below this horizontal drone-to-target distance (metres) the yaw
             set-point is held.
     """
 
-    distance: float = 4.0
-    height: float = 2.0
+    distance: float = 6.0
+    height: float = 3.0
     max_speed: float = 2.0
     max_yaw_rate: float = 1.0
     min_yaw_distance: float = 0.5
