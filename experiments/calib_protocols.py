@@ -26,9 +26,11 @@ paper's convention) and drawn by the protocol (:func:`uavcal_jax.calib.loop.eval
 - ``window_mean``: each window's mean IMU sample minus the training set's mean (no learning;
   right where the window's motion averages out and gravity's projection matches the training
   set's mean);
-- ``vio_bias`` and ``visual_ls`` (physical protocol only, ``--blind-offsets``): the
-  estimators that need no ground truth, ``uavcal calib predict --method vio-bias`` (the VIO's
-  bias states) and ``visual-ls`` (the gyro's least squares against the camera's rotations),
+- ``vio_bias``, ``visual_ls`` and ``self_calib`` (physical protocol only,
+  ``--blind-offsets``): the estimators that need no ground truth, ``uavcal calib predict
+  --method vio-bias`` (the VIO's bias states), ``visual-ls`` (the gyro's least squares
+  against the camera's rotations) and ``self-calib`` (descending through the VIO's own
+  windows, their biases pinned),
   each on the whole held-out recording with the trial's first offsets injected into its IMU;
   scored against the ``total`` label over the span each used;
 - ``least_squares``: the classical constant-offset fit of each window's full-rate IMU against
@@ -156,7 +158,7 @@ VARIANTS = {
 VISUAL_VARIANTS = ("motion_tokens",)
 #: The estimators that need no ground truth and run on whole held-out recordings
 #: (``uavcal calib predict --method``): table key -> registered method.
-BLIND_METHODS = {"vio_bias": "vio-bias", "visual_ls": "visual-ls"}
+BLIND_METHODS = {"vio_bias": "vio-bias", "visual_ls": "visual-ls", "self_calib": "self-calib"}
 METHODS = {
     "transformer": "transformer (video + IMU)",
     "imu_only": "transformer, IMU only",
@@ -166,6 +168,7 @@ METHODS = {
     "window_mean": "window-mean baseline",
     "vio_bias": "VIO bias states (no ground truth)",
     "visual_ls": "visual rotations' gyro least squares (no ground truth)",
+    "self_calib": "self-calibration through the VIO's windows (no ground truth)",
     "least_squares": "least squares vs ground-truth states",
     "least_squares_oracle": "least squares minus true IMU bias (oracle)",
 }

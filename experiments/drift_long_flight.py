@@ -20,9 +20,9 @@ and (b) the stereo VIO, each scored by the final position error (the VIO first a
 heading and origin over its first 10 m), that error as % of the distance flown, and the ATE
 (SE(3)-aligned RMSE); :mod:`uavcal_jax.pipeline.drift` does the work.
 
-The VIO self-calibration (:mod:`uavcal_jax.vio.selfcalib`) is not among the corrections: it
-descends on synthetic windows it builds itself from a known flight and landmarks, and has no
-entry point that takes a recording, so it cannot estimate these flights' offsets blind.
+The VIO self-calibration is among them as ``self-calib``
+(:mod:`uavcal_jax.pipeline.self_calib`: the VIO's own windows, biases pinned, descended
+through). Session 17's timing below predates it; it adds one VIO pass per flight.
 
 Resolution: 376x240 by default, a quarter of EuRoC's pixels. Per flight the study renders
 about 2300 stereo frames and runs the VIO six times over them (once inside ``vio-bias``); on the

@@ -37,6 +37,7 @@ from uavcal_jax.vio.selfcalib import (
     DEFAULT_ACCEL,
     DEFAULT_GYRO,
     METHODS,
+    DescentConfig,
     SelfCalibConfig,
     recover_offset,
 )
@@ -101,7 +102,8 @@ def main(argv=None) -> dict:
     for seed in range(args.seeds):
         cfg = SelfCalibConfig(windows=windows, seed=seed, n_frames=args.frames,
                               n_landmarks=landmarks, keyframe_dt=args.keyframe_dt,
-                              steps=args.steps, method=args.method, lr=args.lr)
+                              descent=DescentConfig(steps=args.steps, method=args.method,
+                                                    lr=args.lr))
         res = recover_offset(offset, cfg, log=lambda s: print(s, file=sys.stderr))
         print(f"\n### seed {seed}: {windows} windows x {args.frames} keyframes x {landmarks} "
               f"landmarks, {args.method}, {args.steps} steps, {res['wall_s']:.0f} s\n")

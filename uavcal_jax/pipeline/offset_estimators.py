@@ -16,7 +16,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from uavcal_jax.errors import DataError
-from uavcal_jax.pipeline import transformer_offset, vio_bias, visual_ls
+from uavcal_jax.pipeline import self_calib, transformer_offset, vio_bias, visual_ls
 from uavcal_jax.pipeline.offset_estimate import OffsetEstimate, OffsetMethod
 
 __all__ = ["DEFAULT_METHOD", "METHODS", "configure_method", "get_method", "method_names",
@@ -24,7 +24,8 @@ __all__ = ["DEFAULT_METHOD", "METHODS", "configure_method", "get_method", "metho
 
 #: The methods by name, in ``--help`` order.
 METHODS: dict[str, OffsetMethod] = {
-    m.name: m for m in (vio_bias.METHOD, visual_ls.METHOD, transformer_offset.METHOD)}
+    m.name: m for m in (vio_bias.METHOD, visual_ls.METHOD, self_calib.METHOD,
+                        transformer_offset.METHOD)}
 #: The method used when none is named: measured the most accurate (the report of issue 20).
 DEFAULT_METHOD = vio_bias.METHOD.name
 

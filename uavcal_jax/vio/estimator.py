@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -54,7 +55,7 @@ from uavcal_jax.vio.motion_init import initialize_moving
 from uavcal_jax.vio.sliding_window import SlidingWindow
 from uavcal_jax.vio.slots import stereo_depths
 from uavcal_jax.vio.stage_timer import StageTimer
-from uavcal_jax.vio.window import CalibParams
+from uavcal_jax.vio.window import CalibParams, WindowProblem, WindowState
 
 __all__ = ["PRUNE_DEPTH_FRACTION", "STATUSES", "FrameEstimate", "StereoVio", "TrackedFrame"]
 
@@ -172,6 +173,12 @@ class StereoVio:
         self.resets = 0
         self.window = SlidingWindow(cfg, self.noise, self.params)
         self._last_good: BodyState | None = None
+        #: ``None`` or a callable ``(t_ns, state, problem, params)`` handed each full window
+        #: solved on a good frame (no failure, enough landmarks), before it slides: for
+        #: studies of the window itself (:mod:`uavcal_jax.vio.selfcalib`). Called in
+        #: :meth:`update`'s thread; the arrays are immutable, so keeping them costs no copy.
+        self.window_sink: Callable[[int, WindowState, WindowProblem, CalibParams], None] | None
+        self.window_sink = None
         # the front end's own view: its previous frame; and the newest gyro bias the back end
         # published, which seeds the flow (read through flow_bias(), a snapshot, never by a
         # front end running concurrently with update())
@@ -269,6 +276,9 @@ class StereoVio:
         if failure is not None:
             return self._reset(failure, t_ns, pred, timer, feats)
 
+        if (self.window_sink is not None and slots.filled_once
+                and active >= cfg.limits.min_landmarks):
+            self.window_sink(t_ns, window.state, window.problem, window.params)
         if is_kf:
             slots.kf_features, slots.kf_rotation = feats, est.rotation
         window.slide()

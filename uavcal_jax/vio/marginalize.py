@@ -67,6 +67,8 @@ from uavcal_jax.vio.window import (
 
 __all__ = [
     "drop_second_newest",
+    "equilibrated_pinv",
+    "equilibrated_prior",
     "marginal_information",
     "marginalize_oldest",
     "slide_imu_samples",
@@ -78,7 +80,7 @@ _D = FRAME_DIM
 # --- helpers ---------------------------------------------------------------------------------
 
 
-def _equilibrated_pinv(A: jax.Array, eps: float) -> jax.Array:
+def equilibrated_pinv(A: jax.Array, eps: float) -> jax.Array:
     """Pseudo-inverse of the symmetric PSD ``A`` (n, n) through the eigen-decomposition of
     ``D^-1/2 A D^-1/2`` (``D = diag A``), eigenvalues below ``eps`` dropped."""
     d = jnp.diag(A)
@@ -89,7 +91,7 @@ def _equilibrated_pinv(A: jax.Array, eps: float) -> jax.Array:
     return s[:, None] * ((V * inv[None, :]) @ V.T) * s[None, :]
 
 
-def _equilibrated_prior(H: jax.Array, b: jax.Array, lin: Keyframes, eps: float) -> Prior:
+def equilibrated_prior(H: jax.Array, b: jax.Array, lin: Keyframes, eps: float) -> Prior:
     """:func:`prior_from_information` on ``D^-1/2 H D^-1/2`` and ``D^-1/2 b`` in the scaled
     variable ``e = D^1/2 d``, its Jacobian mapped back (``J = J_e D^1/2``): the same quadratic,
     with the eigen-decomposition's error relative to each entry's own scale."""
@@ -153,7 +155,7 @@ def marginal_information(state: WindowState, problem: WindowProblem, params: Cal
     g = neq.g_f - W @ neq.g_l
     S = 0.5 * (S + S.T)
     # keyframe 0
-    Smm_inv = _equilibrated_pinv(S[:_D, :_D], config.pinv_eps)
+    Smm_inv = equilibrated_pinv(S[:_D, :_D], config.pinv_eps)
     K = S[_D:, :_D] @ Smm_inv
     Hr = S[_D:, _D:] - K @ S[:_D, _D:]
     br = g[_D:] - K @ g[:_D]
@@ -188,7 +190,7 @@ def _shift_oldest(state, problem, H, b, config):
     H = jnp.roll(jnp.roll(H, -_D, axis=0), -_D, axis=1)
     b = jnp.roll(b, -_D)
     frames = _tree_shift_down(state.frames)
-    prior = _equilibrated_prior(H, b, frames, config.prior_eps)
+    prior = equilibrated_prior(H, b, frames, config.prior_eps)
 
     elim = _marginalised_landmarks(problem)
     lm = problem.landmarks
@@ -266,7 +268,7 @@ def _prior_without(prior: Prior, k, src, keep, config: MarginalizeConfig) -> Pri
     rows = jax.lax.dynamic_slice(H, (k * _D, zero), (_D, N * _D))
     Hkk = jax.lax.dynamic_slice(rows, (zero, k * _D), (_D, _D))
     bk = jax.lax.dynamic_slice(b, (k * _D,), (_D,))
-    K = rows.T @ _equilibrated_pinv(Hkk, config.pinv_eps)
+    K = rows.T @ equilibrated_pinv(Hkk, config.pinv_eps)
     H = H - K @ rows
     b = b - K @ bk
     idx = (src[:, None] * _D + jnp.arange(_D)).reshape(-1)
@@ -274,7 +276,7 @@ def _prior_without(prior: Prior, k, src, keep, config: MarginalizeConfig) -> Pri
     H = jnp.where(use[:, None] & use[None, :], H[idx][:, idx], 0.0)
     b = jnp.where(use, b[idx], 0.0)
     lin = jax.tree_util.tree_map(lambda x: x[src], prior.lin)
-    out = _equilibrated_prior(0.5 * (H + H.T), b, lin, config.prior_eps)
+    out = equilibrated_prior(0.5 * (H + H.T), b, lin, config.prior_eps)
     return dataclasses.replace(out, mask=prior.mask)
 
 

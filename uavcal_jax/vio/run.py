@@ -171,7 +171,8 @@ def _corrected_imu(imu: ImuData, offset: np.ndarray) -> ImuData:
 def run_vio(sequence: Sequence, config: VioConfig | None = None,
             imu_offset=None, *, show_progress: bool = False, max_frames: int | None = None,
             left: str = "cam0", right: str = "cam1", pipelined: bool = True,
-            exclude_boxes: Callable[[int], np.ndarray | None] | None = None) -> VioResult:
+            exclude_boxes: Callable[[int], np.ndarray | None] | None = None,
+            window_sink: Callable | None = None) -> VioResult:
     """Stereo VIO over ``sequence``.
 
     Args:
@@ -189,6 +190,7 @@ def run_vio(sequence: Sequence, config: VioConfig | None = None,
             detector's boxes, so that a target filling the view does not move the world).
             Called in the front end's thread, in frame order; it may block until the boxes
             are known.
+        window_sink: :attr:`StereoVio.window_sink` (each full window solved on a good frame).
 
     Raises:
         DataError: no IMU, no IMU calibration, or a camera missing.
@@ -207,6 +209,7 @@ def run_vio(sequence: Sequence, config: VioConfig | None = None,
     config = resolve_camera(config if config is not None else VioConfig(), cam0.calibration)
     vio = StereoVio(cam0.calibration, cam1.calibration, sequence.imu_calibration,
                     _corrected_imu(sequence.imu, offset), config)
+    vio.window_sink = window_sink
     pairs = stereo_pairs(sequence, left, right)
     if max_frames is not None:
         pairs = pairs[:max_frames]

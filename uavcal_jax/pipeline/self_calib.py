@@ -1,0 +1,157 @@
+"""``self-calib``: the IMU's constant error by differentiating through the VIO's own windows.
+
+The stereo VIO (:func:`uavcal_jax.vio.run.run_vio`) runs once on the raw IMU; the full windows
+it solves on good frames (no failure, enough landmarks) in the last
+:attr:`SelfCalibOptions.tail_fraction` of the flight are kept
+(:attr:`~uavcal_jax.vio.estimator.StereoVio.window_sink`), and :attr:`SelfCalibOptions.windows`
+of them, evenly spread over that span, are used. In each, the bias states are pinned at zero
+and the bias information taken out of the marginalisation prior
+(:func:`uavcal_jax.vio.selfcalib.pin_window_biases`), so the window can only explain a
+constant error in its IMU through :class:`~uavcal_jax.vio.window.CalibParams`' offset; that
+offset is found from zero by preconditioned descent on the window's converged cost, its
+gradient by implicit differentiation of the solve
+(:func:`uavcal_jax.vio.selfcalib.descend_offset`). The estimate is the per-channel median of
+the windows' offsets (label ``total``: the window sees the whole constant error).
+
+This is the synthetic study of :mod:`uavcal_jax.vio.selfcalib` on windows the VIO built from
+the recording's frames. The VIO's bias states carry the same information, window by window;
+what the self-calibration adds is a gradient of the VIO's residuals with respect to the IMU's
+calibration, the path through which any other calibration parameter could be learned.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+
+import jax
+import numpy as np
+
+from uavcal_jax.config import apply_overrides
+from uavcal_jax.data.sequence import Sequence
+from uavcal_jax.errors import DataError
+from uavcal_jax.pipeline.offset_estimate import (
+    SIX_CHANNELS,
+    OffsetEstimate,
+    OffsetMethod,
+    check_sequence,
+)
+from uavcal_jax.progress import progress as progress_bar
+from uavcal_jax.vio.config import VioConfig
+from uavcal_jax.vio.run import run_vio
+from uavcal_jax.vio.selfcalib import DescentConfig, descend_offset, pin_window_biases
+
+__all__ = ["METHOD", "SelfCalibOptions", "configure", "estimate", "spread_windows"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SelfCalibOptions:
+    """The ``self-calib`` method's options (``--set`` keys: ``windows``, ``tail_fraction``,
+    ``sigma_gyro``, ``sigma_accel``, ``descent.*``, ``vio.*``).
+
+    Attributes:
+        windows: how many of the VIO's windows are fitted (evenly spread over the span).
+        tail_fraction: the share of the flight, at its end, whose windows count (the VIO's
+            biases take a few seconds to settle, and with them the points its windows'
+            preintegrations are linearised at); in ``(0, 1]``.
+        sigma_gyro, sigma_accel: the zero-bias pin, rad/s and m/s^2.
+        descent: the descent's settings.
+        vio: the VIO's settings (:class:`~uavcal_jax.vio.config.VioConfig`).
+    """
+
+    windows: int = 6
+    tail_fraction: float = 2.0 / 3.0
+    sigma_gyro: float = 1e-4
+    sigma_accel: float = 1e-3
+    descent: DescentConfig = DescentConfig(steps=4)
+    vio: VioConfig = VioConfig()
+
+    def __post_init__(self) -> None:
+        if self.windows < 1:
+            raise ValueError(f"windows must be >= 1, got {self.windows}")
+        if not 0.0 < self.tail_fraction <= 1.0:
+            raise ValueError(f"tail_fraction must be in (0, 1], got {self.tail_fraction}")
+        if not (self.sigma_gyro > 0.0 and self.sigma_accel > 0.0):
+            raise ValueError("sigma_gyro and sigma_accel must be > 0")
+
+
+def configure(overrides: Iterable[str] = ()) -> SelfCalibOptions:
+    """:class:`SelfCalibOptions` with ``key=value`` ``overrides`` (e.g. ``windows=4``,
+    ``descent.steps=6``, ``vio.solver.max_iterations=4``).
+
+    Raises:
+        uavcal_jax.config.ConfigError: an unknown key (named) or a bad value.
+    """
+    return apply_overrides(SelfCalibOptions(), list(overrides))
+
+
+def spread_windows(t_ns: np.ndarray, count: int, tail_fraction: float) -> np.ndarray:
+    """Indices of at most ``count`` of the windows at times ``t_ns`` (int ns, increasing),
+    those in the last ``tail_fraction`` of the span, evenly spread over it (the nearest to
+    ``count`` equally spaced times; no index twice)."""
+    t_ns = np.asarray(t_ns, np.int64)
+    if t_ns.size == 0:
+        return np.zeros(0, np.int64)
+    start = t_ns[-1] - tail_fraction * float(t_ns[-1] - t_ns[0])
+    tail = np.flatnonzero(t_ns >= start)
+    wanted = np.linspace(t_ns[tail[0]], t_ns[tail[-1]], min(count, tail.size))
+    picks = tail[np.abs(t_ns[tail][None, :] - wanted[:, None]).argmin(axis=1)]
+    return np.unique(picks)
+
+
+def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(), *,  # noqa: B008
+             progress: bool = False) -> OffsetEstimate:
+    """The ``self-calib`` estimate of ``sequence`` (stereo, with an IMU; no ground truth).
+    Per item: each window's offset.
+
+    ``info`` holds ``frames``, ``resets``, ``windows_seen`` (full windows solved on good
+    frames in the tail), ``windows_used`` and each window's ``sigma`` (the Hessian's
+    Cramer-Rao standard deviation, rad/s and m/s^2).
+
+    Raises:
+        DataError: what :func:`~uavcal_jax.vio.run.run_vio` refuses, or no full window in the
+            flight's tail.
+    """
+    check_sequence(sequence)
+    kept: list[tuple] = []
+    result = run_vio(sequence, options.vio, show_progress=progress,
+                     window_sink=lambda t_ns, *window: kept.append((t_ns, *window)))
+    t_ns = np.array([w[0] for w in kept], np.int64)
+    picks = spread_windows(t_ns, options.windows, options.tail_fraction)
+    if picks.size == 0:
+        raise DataError(f"the VIO solved no full window on a good frame ({len(result.frames)} "
+                        f"frames, {result.resets} resets): no self-calibration",
+                        sequence.root or sequence.name)
+    estimates, sigmas = [], []
+    bar = progress_bar(total=int(picks.size), desc="self-calib windows", enabled=progress,
+                       unit="window")
+    with jax.enable_x64(True):
+        for i in picks:
+            _, state, problem, params = kept[i]
+            start, pinned = pin_window_biases(state, problem, options.sigma_gyro,
+                                              options.sigma_accel)
+            fit = descend_offset([pinned], [params], [start], options.descent)
+            estimates.append(fit["estimate"])
+            sigmas.append(fit["sigma"])
+            bar.update(1)
+    bar.close()
+    per_window = np.stack(estimates)
+    median = np.median(per_window, axis=0)
+    first_ns = int(sequence.camera("cam0").t_ns[0])
+    info = {"frames": len(result.frames), "resets": result.resets,
+            "windows_seen": int(np.sum(t_ns >= t_ns[picks[0]])),
+            "windows_used": int(picks.size), "tail_fraction": options.tail_fraction,
+            "sigma": np.stack(sigmas).tolist()}
+    return OffsetEstimate(
+        offset=median, channels=SIX_CHANNELS, median=median, per_item=per_window,
+        item_t_s=(t_ns[picks] - first_ns) * 1e-9, item="window",
+        span_ns=(int(t_ns[picks[0]]), int(t_ns[picks[-1]])), label="total",
+        settings=dataclasses.replace(options, vio=result.config), info=info)
+
+
+METHOD = OffsetMethod(
+    name="self-calib", configure=configure, estimate=estimate,
+    summary="differentiates through the VIO's own windows: their biases pinned at zero, the "
+            "offset that minimises each window's converged cost, by implicit gradients; "
+            "median over windows in the last tail_fraction of the flight (--set windows=N, "
+            "tail_fraction=F, descent.steps=N, vio.KEY=VALUE)")
