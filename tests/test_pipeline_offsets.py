@@ -258,3 +258,19 @@ def test_self_calib_recovers_the_gyro_through_the_vios_own_windows(flight, cli_r
     per_window = np.asarray(summary["per_window"])
     assert np.all(np.abs(per_window[:, :3] - true[:3]) < 2 * SELF_CALIB_GYRO_TOLERANCE)
     np.testing.assert_allclose(estimate.offset, np.median(per_window, axis=0))
+
+
+@pytest.mark.parametrize("a", [(0.0, 0.0, 9.8), (9.8, 0.1, -0.2), (-9.8, 0.0, 0.0),
+                               (3.0, -4.0, 8.0)])
+def test_mounting_alignment_is_the_smallest_rotation_onto_the_training_gravity(a):
+    from uavcal_jax.pipeline.transformer_offset import mounting_alignment
+
+    train = np.array([9.7, 0.2, -0.5])
+    R = mounting_alignment(np.tile(a, (5, 1)), train)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    unit = np.asarray(a) / np.linalg.norm(a)
+    np.testing.assert_allclose(R @ unit, train / np.linalg.norm(train), atol=1e-12)
+    # the smallest: its angle is the angle between the two, and its axis is across both
+    angle = np.arccos(np.clip(unit @ train / np.linalg.norm(train), -1, 1))
+    assert np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)) == pytest.approx(angle, abs=1e-9)

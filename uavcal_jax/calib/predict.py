@@ -206,6 +206,7 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     info = {
         "run": str(run_dir), "kind": kind, "seeds": seeds, "sensor": sensor,
         "gravity_angle_deg": angle,
+        "training_specific_force": None if angle is None else train_mean[3:].tolist(),
         "channels": list(prediction.channels),
         "frame_encoder_dtype": state.config.model.frame_encoder_dtype,
         "window_s": window.duration, "stride_s": window.stride,

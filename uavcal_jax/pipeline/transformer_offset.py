@@ -9,12 +9,14 @@ What it estimates is what it was trained to predict: the run's label in force
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from uavcal_jax.calib.config import CalibRunConfig
 from uavcal_jax.calib.loop import read_run_config
@@ -25,9 +27,15 @@ from uavcal_jax.calib.trials import TRIAL_FORMAT, trial_folders
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.errors import DataError, OutOfDomainWarning
 from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
-from uavcal_jax.pipeline.offset_estimate import OffsetEstimate, OffsetMethod, check_sequence
+from uavcal_jax.pipeline.offset_estimate import (
+    SIX_CHANNELS,
+    OffsetEstimate,
+    OffsetMethod,
+    check_sequence,
+)
 
-__all__ = ["METHOD", "TransformerOptions", "configure", "estimate", "run_folder"]
+__all__ = ["METHOD", "MOUNTING_TOLERANCE_DEG", "TransformerOptions", "configure", "estimate",
+           "mounting_alignment", "run_folder"]
 
 
 @dataclass(frozen=True)
@@ -99,11 +107,8 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
                                            run=run, rotation_source=visual_rotation_source)
     angle = info.get("gravity_angle_deg")
     if angle is not None and angle > MOUNTING_TOLERANCE_DEG:
-        warnings.warn(OutOfDomainWarning(
-            f"{sequence.name}: the IMU's mean specific force points {angle:.0f} degrees away "
-            "from the calibrator's training flights' (an IMU mounted otherwise): its estimate "
-            "is unreliable; the vio-bias and visual-ls methods do not depend on the mounting"),
-            stacklevel=2)
+        info, prediction = _predict_remounted(sequence, options, info, prediction)
+    duration_ns = int(round(run.window.duration * 1e9))
     duration_ns = int(round(run.window.duration * 1e9))
     start_ns = prediction.start_ns
     return OffsetEstimate(
@@ -113,6 +118,71 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
         item_t_s=np.asarray(prediction.start_s, np.float64), item="window",
         span_ns=(int(start_ns[0]), int(start_ns[-1]) + duration_ns - 1),
         label=run.injection.target, settings=run, info=info)
+
+
+def mounting_alignment(accel: np.ndarray, training_specific_force) -> np.ndarray:
+    """(3, 3) the smallest rotation taking a recording's mean specific force (``accel (N, 3)``
+    m/s^2, IMU frame) onto the direction of a calibrator's training mean (3,): applied to the
+    IMU's vectors (``v' = R v``) it tilts an IMU mounted otherwise back into the training
+    flights' mounting, up to a turn about gravity, which the specific force cannot see."""
+    a = np.mean(np.asarray(accel, np.float64).reshape(-1, 3), axis=0)
+    b = np.asarray(training_specific_force, np.float64).reshape(3)
+    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    sin, cos = np.linalg.norm(axis), float(a @ b)
+    if sin < 1e-12:  # parallel (nothing to do) or opposite (any perpendicular axis)
+        if cos > 0:
+            return np.eye(3)
+        axis = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
+        sin = np.linalg.norm(axis)
+    return Rotation.from_rotvec(axis / sin * np.arctan2(sin, cos)).as_matrix()
+
+
+def _rotate_channels(values: np.ndarray, channels: list[str], R: np.ndarray) -> np.ndarray:
+    """``values (..., C)`` in ``channels`` (whole gyro and/or accel triplets), each triplet
+    turned by ``R`` (3, 3)."""
+    out = np.array(values, np.float64)
+    for first in (0, 3):
+        names = list(SIX_CHANNELS[first:first + 3])
+        if names[0] in channels:
+            at = [channels.index(n) for n in names]
+            out[..., at] = out[..., at] @ R.T
+    return out
+
+
+def _predict_remounted(sequence: Sequence, options: TransformerOptions, info: dict,
+                       prediction):
+    """The prediction with the IMU tilted into the training flights' mounting
+    (:func:`mounting_alignment`: its samples and the camera's relative body rotations turned
+    into that frame), turned back into the recording's IMU frame (a model's channels are
+    whole triplets: :func:`~uavcal_jax.calib.predict.channel_names`); a warning says so."""
+    angle = info["gravity_angle_deg"]
+    R = mounting_alignment(sequence.imu.accel, info["training_specific_force"])
+    imu = dataclasses.replace(sequence.imu, gyro=sequence.imu.gyro @ R.T,
+                              accel=sequence.imu.accel @ R.T)
+
+    def turned_rotations(folder):
+        visual = visual_rotation_source(folder)
+        return visual._replace(R=R @ visual.R @ R.T)
+
+    info, turned = predict_on_sequence(options.run_dir, dataclasses.replace(sequence, imu=imu),
+                                       kind=options.kind, run=options.run,
+                                       rotation_source=turned_rotations)
+    back = R.T  # the estimate is in the turned frame
+    channels = list(turned.channels)
+    prediction = turned._replace(
+        per_window=_rotate_channels(turned.per_window, channels, back),
+        per_seed=_rotate_channels(turned.per_seed, channels, back),
+        median=_rotate_channels(turned.median, channels, back))
+    info = {**info, "gravity_angle_deg": angle,
+            "mounting_alignment_deg": float(np.degrees(Rotation.from_matrix(R).magnitude()))}
+    warnings.warn(OutOfDomainWarning(
+        f"{sequence.name}: the IMU's mean specific force points {angle:.0f} degrees away from "
+        "the calibrator's training flights' (an IMU mounted otherwise): the IMU was tilted "
+        "into the training mounting for the model and its estimate turned back; a turn about "
+        "gravity cannot be undone so, and vio-bias does not depend on the mounting"),
+        stacklevel=3)
+    return info, prediction
 
 
 #: Degrees between a recording's mean specific force and the training flights' beyond which
