@@ -3,8 +3,9 @@
 The stereo VIO (:func:`uavcal_jax.vio.run.run_vio`) runs once on the raw IMU; the full windows
 it solves on good frames (no failure, enough landmarks) in the last
 :attr:`SelfCalibOptions.tail_fraction` of the flight are kept
-(:attr:`~uavcal_jax.vio.estimator.StereoVio.window_sink`), and :attr:`SelfCalibOptions.windows`
-of them, evenly spread over that span, are used. In each, the bias states are pinned at zero
+(:attr:`~uavcal_jax.vio.estimator.StereoVio.window_sink`): :attr:`SelfCalibOptions.windows`
+of them, those nearest to times evenly spread over that span (:class:`NearestWindows`, so
+only those are held in memory). In each, the bias states are pinned at zero
 and the bias information taken out of the marginalisation prior
 (:func:`uavcal_jax.vio.selfcalib.pin_window_biases`), so the window can only explain a
 constant error in its IMU through :class:`~uavcal_jax.vio.window.CalibParams`' offset; that
@@ -41,7 +42,8 @@ from uavcal_jax.vio.config import VioConfig
 from uavcal_jax.vio.run import run_vio
 from uavcal_jax.vio.selfcalib import DescentConfig, descend_offset, pin_window_biases
 
-__all__ = ["METHOD", "SelfCalibOptions", "configure", "estimate", "spread_windows"]
+__all__ = ["METHOD", "NearestWindows", "SelfCalibOptions", "configure", "estimate",
+           "window_targets"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,18 +87,42 @@ def configure(overrides: Iterable[str] = ()) -> SelfCalibOptions:
     return apply_overrides(SelfCalibOptions(), list(overrides))
 
 
-def spread_windows(t_ns: np.ndarray, count: int, tail_fraction: float) -> np.ndarray:
-    """Indices of at most ``count`` of the windows at times ``t_ns`` (int ns, increasing),
-    those in the last ``tail_fraction`` of the span, evenly spread over it (the nearest to
-    ``count`` equally spaced times; no index twice)."""
-    t_ns = np.asarray(t_ns, np.int64)
-    if t_ns.size == 0:
-        return np.zeros(0, np.int64)
-    start = t_ns[-1] - tail_fraction * float(t_ns[-1] - t_ns[0])
-    tail = np.flatnonzero(t_ns >= start)
-    wanted = np.linspace(t_ns[tail[0]], t_ns[tail[-1]], min(count, tail.size))
-    picks = tail[np.abs(t_ns[tail][None, :] - wanted[:, None]).argmin(axis=1)]
-    return np.unique(picks)
+def window_targets(first_ns: int, last_ns: int, count: int, tail_fraction: float
+                   ) -> np.ndarray:
+    """``(count,)`` int ns: times evenly spread over the last ``tail_fraction`` of
+    ``[first_ns, last_ns]``, its ends included (one time, the end, for ``count`` 1)."""
+    start = last_ns - tail_fraction * float(last_ns - first_ns)
+    if count == 1:
+        return np.array([last_ns], np.int64)
+    return np.round(np.linspace(start, last_ns, count)).astype(np.int64)
+
+
+class NearestWindows:
+    """A :attr:`~uavcal_jax.vio.estimator.StereoVio.window_sink` keeping, for each of
+    ``targets`` (int ns), the window solved nearest to it at or after ``targets[0]``: at most
+    ``len(targets)`` windows are held, whatever the flight's length.
+
+    Attributes:
+        kept: per target, ``(t_ns, state, problem, params)`` or ``None``.
+    """
+
+    def __init__(self, targets: np.ndarray):
+        self.targets = np.asarray(targets, np.int64)
+        self.kept: list[tuple | None] = [None] * len(self.targets)
+        self._gap = np.full(len(self.targets), np.inf)
+
+    def __call__(self, t_ns: int, state, problem, params) -> None:
+        if t_ns < self.targets[0]:
+            return
+        gaps = np.abs(self.targets - t_ns).astype(np.float64)
+        i = int(np.argmin(gaps))
+        if gaps[i] < self._gap[i]:
+            self._gap[i] = gaps[i]
+            self.kept[i] = (int(t_ns), state, problem, params)
+
+    def windows(self) -> list[tuple]:
+        """The kept windows, in time order."""
+        return sorted((w for w in self.kept if w is not None), key=lambda w: w[0])
 
 
 def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(), *,  # noqa: B008
@@ -104,30 +130,29 @@ def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(),
     """The ``self-calib`` estimate of ``sequence`` (stereo, with an IMU; no ground truth).
     Per item: each window's offset.
 
-    ``info`` holds ``frames``, ``resets``, ``windows_seen`` (full windows solved on good
-    frames in the tail), ``windows_used`` and each window's ``sigma`` (the Hessian's
-    Cramer-Rao standard deviation, rad/s and m/s^2).
+    ``info`` holds ``frames``, ``resets``, ``windows_used`` and each window's ``sigma`` (the
+    Hessian's Cramer-Rao standard deviation, rad/s and m/s^2).
 
     Raises:
         DataError: what :func:`~uavcal_jax.vio.run.run_vio` refuses, or no full window in the
             flight's tail.
     """
     check_sequence(sequence)
-    kept: list[tuple] = []
-    result = run_vio(sequence, options.vio, show_progress=progress,
-                     window_sink=lambda t_ns, *window: kept.append((t_ns, *window)))
-    t_ns = np.array([w[0] for w in kept], np.int64)
-    picks = spread_windows(t_ns, options.windows, options.tail_fraction)
-    if picks.size == 0:
-        raise DataError(f"the VIO solved no full window on a good frame ({len(result.frames)} "
+    t_frames = np.asarray(sequence.camera("cam0").t_ns, np.int64)
+    sink = NearestWindows(window_targets(int(t_frames[0]), int(t_frames[-1]), options.windows,
+                                         options.tail_fraction))
+    result = run_vio(sequence, options.vio, show_progress=progress, window_sink=sink)
+    windows = sink.windows()
+    if not windows:
+        raise DataError(f"the VIO solved no full window on a good frame in the last "
+                        f"{options.tail_fraction:.0%} of the flight ({len(result.frames)} "
                         f"frames, {result.resets} resets): no self-calibration",
                         sequence.root or sequence.name)
     estimates, sigmas = [], []
-    bar = progress_bar(total=int(picks.size), desc="self-calib windows", enabled=progress,
+    bar = progress_bar(total=len(windows), desc="self-calib windows", enabled=progress,
                        unit="window")
     with jax.enable_x64(True):
-        for i in picks:
-            _, state, problem, params = kept[i]
+        for _, state, problem, params in windows:
             start, pinned = pin_window_biases(state, problem, options.sigma_gyro,
                                               options.sigma_accel)
             fit = descend_offset([pinned], [params], [start], options.descent)
@@ -137,15 +162,14 @@ def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(),
     bar.close()
     per_window = np.stack(estimates)
     median = np.median(per_window, axis=0)
-    first_ns = int(sequence.camera("cam0").t_ns[0])
+    t_ns = np.array([w[0] for w in windows], np.int64)
     info = {"frames": len(result.frames), "resets": result.resets,
-            "windows_seen": int(np.sum(t_ns >= t_ns[picks[0]])),
-            "windows_used": int(picks.size), "tail_fraction": options.tail_fraction,
+            "windows_used": len(windows), "tail_fraction": options.tail_fraction,
             "sigma": np.stack(sigmas).tolist()}
     return OffsetEstimate(
         offset=median, channels=SIX_CHANNELS, median=median, per_item=per_window,
-        item_t_s=(t_ns[picks] - first_ns) * 1e-9, item="window",
-        span_ns=(int(t_ns[picks[0]]), int(t_ns[picks[-1]])), label="total",
+        item_t_s=(t_ns - t_frames[0]) * 1e-9, item="window",
+        span_ns=(int(t_ns[0]), int(t_ns[-1])), label="total",
         settings=dataclasses.replace(options, vio=result.config), info=info)
 
 
