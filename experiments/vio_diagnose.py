@@ -102,7 +102,7 @@ def diagnose(folder: str, overrides: list[str], max_frames: int | None, init_s: 
     with one_blas_thread():
         for t_ns, i, j in pairs:
             tf = vio.track(t_ns, cam0.load(i), cam1.load(j) if j is not None else None,
-                           vio.flow_bias())
+                           vio.flow_seed())
             feats.append(tf.features)
             frames.append(vio.update(tf))
     t_ns = np.array([p[0] for p in pairs], np.int64)

@@ -60,8 +60,8 @@ class CorruptedTracks(StereoVio):
         self.t0_ns, self.t1_ns = t0_ns, t1_ns
         self.rng = np.random.default_rng(seed)
 
-    def track(self, t_ns, img_left, img_right, bias_gyro) -> TrackedFrame:
-        tracked = super().track(t_ns, img_left, img_right, bias_gyro)
+    def track(self, t_ns, img_left, img_right, seed) -> TrackedFrame:
+        tracked = super().track(t_ns, img_left, img_right, seed)
         if self.t0_ns <= tracked.t_ns < self.t1_ns:
             tracked = dataclasses.replace(tracked,
                                           features=shuffled_ids(tracked.features, self.rng))

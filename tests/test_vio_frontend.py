@@ -476,3 +476,54 @@ def test_excluded_boxes_hold_no_track_and_no_new_corner():
     # an empty box list changes nothing
     again = FeatureTracker(_pinhole(), config=cfg).track(0.0, _u8(tex), exclude=np.zeros((0, 4)))
     np.testing.assert_array_equal(again.uv, f0.uv)
+
+
+def _two_motions(rng, n_static: int, n_moving: int):
+    """Normalised matches of a static scene seen from a camera moving forward-right, and of a
+    near object moving across it (its own motion added), previous -> current frame; and the
+    camera's true motion (4, 4: the current camera in the previous one's frame)."""
+    R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
+    t = np.array([0.15, 0.0, 0.2])
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+
+    def view(X0, motion):  # points in the previous camera frame -> both frames' pixels
+        X1 = (X0 - t - motion) @ R  # R^T (X0 - t - motion), row-wise
+        return X0[:, :2] / X0[:, 2:], X1[:, :2] / X1[:, 2:]
+
+    scene = np.column_stack([rng.uniform(-4, 4, (n_static, 2)), rng.uniform(6, 15, n_static)])
+    car = np.column_stack([rng.uniform(-1, 1, (n_moving, 2)), rng.uniform(3, 4, n_moving)])
+    s0, s1 = view(scene, np.zeros(3))
+    c0, c1 = view(car, np.array([0.0, -0.3, 0.0]))
+    noise = rng.normal(0, 0.3 / NOMINAL_FOCAL_PX, (n_static + n_moving, 2))
+    return np.vstack([s0, c0]), np.vstack([s1, c1]) + noise, T
+
+
+def test_a_consensus_the_imu_does_not_explain_gives_way_to_the_rest():
+    """A moving object with more tracks than the static scene wins RANSAC; under the predicted
+    motion its tracks are off their epipolar lines and the scene's are on them, so the
+    scene's consensus replaces it. A static scene's consensus, or no translation predicted:
+    RANSAC's answer stands."""
+    from uavcal_jax.vio.frontend import imu_consistent_inliers
+
+    rng = np.random.default_rng(3)
+    cfg = FrontendConfig()
+    xy0, xy1, T = _two_motions(rng, 40, 90)
+    static = np.arange(130) < 40
+    ransac = reject_outliers(xy0, xy1, cfg)
+    # the car won (with the scene's points that happen to fit its motion too)
+    assert ransac[~static].mean() > 0.9 and ransac[static].mean() < 0.5
+    checked = imu_consistent_inliers(xy0, xy1, ransac, T, cfg)
+    assert not checked[~static].any() and checked[static].sum() >= 20
+    # no translation predicted: nothing is decided; switched off: neither
+    T_rot = T.copy()
+    T_rot[:3, 3] = 0.0
+    np.testing.assert_array_equal(imu_consistent_inliers(xy0, xy1, ransac, T_rot, cfg), ransac)
+    off = dataclasses.replace(cfg, imu_consensus=False)
+    np.testing.assert_array_equal(imu_consistent_inliers(xy0, xy1, ransac, T, off), ransac)
+    # a static scene with mistracks: RANSAC's consensus is the scene, the prediction agrees
+    xy0, xy1, T = _two_motions(rng, 100, 0)
+    xy1[:12] += rng.uniform(-0.05, 0.05, (12, 2))  # 12 tracks up to 23 px off
+    ransac = reject_outliers(xy0, xy1, cfg)
+    assert ransac[12:].mean() > 0.9
+    np.testing.assert_array_equal(imu_consistent_inliers(xy0, xy1, ransac, T, cfg), ransac)

@@ -130,12 +130,13 @@ def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(),
     """The ``self-calib`` estimate of ``sequence`` (stereo, with an IMU; no ground truth).
     Per item: each window's offset.
 
-    ``info`` holds ``frames``, ``resets``, ``windows_used`` and each window's ``sigma`` (the
-    Hessian's Cramer-Rao standard deviation, rad/s and m/s^2).
+    ``info`` holds ``frames``, ``resets``, ``windows_tried``, ``windows_used`` (those whose fit
+    stayed finite) and each one's ``sigma`` (the Hessian's Cramer-Rao standard deviation,
+    rad/s and m/s^2).
 
     Raises:
-        DataError: what :func:`~uavcal_jax.vio.run.run_vio` refuses, or no full window in the
-            flight's tail.
+        DataError: what :func:`~uavcal_jax.vio.run.run_vio` refuses, no full window in the
+            flight's tail, or none whose fit stayed finite.
     """
     check_sequence(sequence)
     t_frames = np.asarray(sequence.camera("cam0").t_ns, np.int64)
@@ -148,23 +149,29 @@ def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(),
                         f"{options.tail_fraction:.0%} of the flight ({len(result.frames)} "
                         f"frames, {result.resets} resets): no self-calibration",
                         sequence.root or sequence.name)
-    estimates, sigmas = [], []
+    estimates, sigmas, fitted = [], [], []
     bar = progress_bar(total=len(windows), desc="self-calib windows", enabled=progress,
                        unit="window")
     with jax.enable_x64(True):
-        for _, state, problem, params in windows:
+        for t_ns, state, problem, params in windows:
             start, pinned = pin_window_biases(state, problem, options.sigma_gyro,
                                               options.sigma_accel)
             fit = descend_offset([pinned], [params], [start], options.descent)
-            estimates.append(fit["estimate"])
-            sigmas.append(fit["sigma"])
+            if fit["finite"]:
+                fitted.append(t_ns)
+                estimates.append(fit["estimate"])
+                sigmas.append(fit["sigma"])
             bar.update(1)
     bar.close()
+    if not estimates:
+        raise DataError(f"no window's fit stayed finite ({len(windows)} tried): no "
+                        "self-calibration", sequence.root or sequence.name)
     per_window = np.stack(estimates)
     median = np.median(per_window, axis=0)
-    t_ns = np.array([w[0] for w in windows], np.int64)
+    t_ns = np.array(fitted, np.int64)
     info = {"frames": len(result.frames), "resets": result.resets,
-            "windows_used": len(windows), "tail_fraction": options.tail_fraction,
+            "windows_tried": len(windows), "windows_used": len(fitted),
+            "tail_fraction": options.tail_fraction,
             "sigma": np.stack(sigmas).tolist()}
     return OffsetEstimate(
         offset=median, channels=SIX_CHANNELS, median=median, per_item=per_window,

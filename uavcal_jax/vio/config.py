@@ -117,6 +117,18 @@ class FrontendConfig:
             USAC keeps all of them, rejects the same outliers, and is no slower.
         ransac_threshold_px: RANSAC's epipolar distance on the virtual pinhole, pixels at
             :data:`NOMINAL_FOCAL_PX` (VINS ``F_threshold``: 1).
+        imu_consensus: when the motion is predicted (the gyro's rotation and the back end's
+            velocity), a RANSAC consensus that the prediction does not explain is replaced by
+            the consensus of the rest when the prediction explains the rest: a moving object
+            filling the view (a followed car the detector does not box, seen 3 m ahead from
+            a low flight) outvotes the static scene, and the window then sees only it
+            (:func:`uavcal_jax.vio.frontend.imu_consistent_inliers`).
+        imu_consensus_px: the consensus is not explained when its tracks' median distance to
+            their predicted epipolar lines exceeds this, pixels at :data:`NOMINAL_FOCAL_PX`...
+        imu_consensus_ratio: ... and the rest's median is below this fraction of it.
+        imu_gate_factor, imu_gate_px: then a track of the consensus leaves it when its
+            distance exceeds both this many times the consensus's median and this many pixels
+            (at :data:`NOMINAL_FOCAL_PX`).
         ransac_confidence: RANSAC's confidence (VINS 0.99).
         stereo: track the left corners into the right image when one is given.
         stereo_epipolar_px: a left-right match is kept when its symmetric distance to the
@@ -162,6 +174,11 @@ class FrontendConfig:
     estimator: str = "usac"
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.99
+    imu_consensus: bool = True
+    imu_consensus_px: float = 2.0
+    imu_consensus_ratio: float = 0.5
+    imu_gate_factor: float = 4.0
+    imu_gate_px: float = 4.0
     stereo: bool = True
     stereo_epipolar_px: float = 1.5
     stereo_seed_disparity: bool = True

@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -57,7 +58,8 @@ from uavcal_jax.vio.slots import stereo_depths
 from uavcal_jax.vio.stage_timer import StageTimer
 from uavcal_jax.vio.window import CalibParams, WindowProblem, WindowState
 
-__all__ = ["PRUNE_DEPTH_FRACTION", "STATUSES", "FrameEstimate", "StereoVio", "TrackedFrame"]
+__all__ = ["PRUNE_DEPTH_FRACTION", "STATUSES", "FlowSeed", "FrameEstimate", "StereoVio",
+           "TrackedFrame"]
 
 #: ``FrameEstimate.status`` values.
 STATUSES = ("waiting", "initialized", "tracking", "coasting", "reset", "no_imu")
@@ -65,6 +67,19 @@ STATUSES = ("waiting", "initialized", "tracking", "coasting", "reset", "no_imu")
 #: times this leave the window (:func:`~uavcal_jax.vio.window_ops.prune`); new landmarks start
 #: at ``min_stereo_depth`` or deeper.
 PRUNE_DEPTH_FRACTION = 0.5
+
+
+class FlowSeed(NamedTuple):
+    """What the back end last published for the front end (:meth:`StereoVio.flow_seed`).
+
+    Attributes:
+        bias_gyro: (3,) rad/s, the newest gyro bias (zero before the first pose).
+        velocity_body: (3,) m/s, the newest tracked frame's velocity in its body frame, or
+            ``None`` (before the first solved window, after a reset, while coasting).
+    """
+
+    bias_gyro: np.ndarray
+    velocity_body: np.ndarray | None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,41 +194,47 @@ class StereoVio:
         #: :meth:`update`'s thread; the arrays are immutable, so keeping them costs no copy.
         self.window_sink: Callable[[int, WindowState, WindowProblem, CalibParams], None] | None
         self.window_sink = None
-        # the front end's own view: its previous frame; and the newest gyro bias the back end
-        # published, which seeds the flow (read through flow_bias(), a snapshot, never by a
-        # front end running concurrently with update())
+        # the front end's own view: its previous frame; and the newest gyro bias and velocity
+        # the back end published, which seed the flow (read through flow_seed(), a snapshot,
+        # never by a front end running concurrently with update())
         self._fe_t_ns: int | None = None
-        self._published_bias_gyro = np.zeros(3)
+        self._published = FlowSeed(np.zeros(3), None)
 
     def process(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None,
                 exclude: np.ndarray | None = None) -> FrameEstimate:
         """Process one stereo frame (either image may be ``None``: a dropped frame):
-        :meth:`track` (seeded at the newest published gyro bias) then :meth:`update`."""
-        return self.update(self.track(t_ns, img_left, img_right, self.flow_bias(), exclude))
+        :meth:`track` (seeded by the newest published :meth:`flow_seed`) then :meth:`update`."""
+        return self.update(self.track(t_ns, img_left, img_right, self.flow_seed(), exclude))
 
-    def flow_bias(self) -> np.ndarray:
-        """(3,) rad/s, a copy of the newest gyro bias :meth:`update` published (zero before
-        the first pose): what a caller hands :meth:`track` to seed the flow."""
-        return self._published_bias_gyro.copy()
+    def flow_seed(self) -> FlowSeed:
+        """A copy of the newest gyro bias and body velocity :meth:`update` published: what a
+        caller hands :meth:`track` to seed the flow."""
+        seed = self._published
+        return FlowSeed(seed.bias_gyro.copy(),
+                        None if seed.velocity_body is None else seed.velocity_body.copy())
 
     def track(self, t_ns: int, img_left: np.ndarray | None, img_right: np.ndarray | None,
-              bias_gyro: np.ndarray, exclude: np.ndarray | None = None) -> TrackedFrame:
+              seed: FlowSeed, exclude: np.ndarray | None = None) -> TrackedFrame:
         """The front end of one frame: the gyro rotation since the previous frame, corrected
-        by ``bias_gyro`` (3,) rad/s, seeds the optical flow. Touches only the tracker and the
-        front end's own state, so it may run in another thread than :meth:`update` (one
-        frame ahead of it: OpenCV and XLA release the GIL). The bias is an argument, not read
-        here, so that which estimate seeds the flow is decided by the caller (a snapshot
-        taken when the task is handed out, :meth:`flow_bias`) and not by thread timing.
+        by ``seed.bias_gyro``, seeds the optical flow; with ``seed.velocity_body`` the
+        predicted motion also checks the outlier test's consensus. Touches only the tracker
+        and the front end's own state, so it may run in another thread than :meth:`update`
+        (one frame ahead of it: OpenCV and XLA release the GIL). The seed is an argument, not
+        read here, so that which estimate seeds the flow is decided by the caller (a snapshot
+        taken when the task is handed out, :meth:`flow_seed`) and not by thread timing.
         ``exclude``: (M, 4) left-image boxes of moving objects that no track may lie in
         (:meth:`~uavcal_jax.vio.frontend.FeatureTracker.track`)."""
         t_ns = int(t_ns)
         t0 = time.perf_counter()
-        bias_gyro = np.asarray(bias_gyro, np.float64).reshape(3)
-        R_gyro = None
+        bias_gyro = np.asarray(seed.bias_gyro, np.float64).reshape(3)
+        R_gyro = t_body = None
         if self._fe_t_ns is not None and t_ns > self._fe_t_ns:
             R_gyro = self.imu.gyro_rotation(self._fe_t_ns, t_ns, bias_gyro)
+            if seed.velocity_body is not None:
+                t_body = np.asarray(seed.velocity_body, np.float64) * (
+                    (t_ns - self._fe_t_ns) * 1e-9)
         self._fe_t_ns = t_ns
-        feats = self.tracker.track(t_ns * 1e-9, img_left, img_right, R_gyro, exclude)
+        feats = self.tracker.track(t_ns * 1e-9, img_left, img_right, R_gyro, exclude, t_body)
         return TrackedFrame(t_ns, feats, 1e3 * (time.perf_counter() - t0))
 
     def update(self, frame: TrackedFrame) -> FrameEstimate:
@@ -225,7 +246,11 @@ class StereoVio:
             else:
                 est = self._track_frame(frame.t_ns, frame.features, timer)
         if est.has_pose:
-            self._published_bias_gyro = np.array(est.bias_gyro, np.float64)
+            # the velocity only from a solved window: a start at rest or a coast does not
+            # know it well enough to judge the front end's tracks
+            velocity = (np.asarray(est.rotation, np.float64).T @ np.asarray(est.velocity)
+                        if est.status == "tracking" else None)
+            self._published = FlowSeed(np.array(est.bias_gyro, np.float64), velocity)
         return est
 
     def _measurements(self, feats: FrameFeatures, depths: tuple | None = None) -> tuple:

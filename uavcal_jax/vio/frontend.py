@@ -41,7 +41,8 @@ from uavcal_jax.geometry.camera import from_calibration
 from uavcal_jax.vio.config import NOMINAL_FOCAL_PX, FrontendConfig
 from uavcal_jax.vio.keyframes import body_to_camera_rotation
 
-__all__ = ["FeatureTracker", "FrameFeatures", "reject_outliers", "stereo_epipolar_distance"]
+__all__ = ["FeatureTracker", "FrameFeatures", "imu_consistent_inliers", "reject_outliers",
+           "stereo_epipolar_distance"]
 
 # cv2.undistortPoints' default criteria (5 iterations) leave ~0.5 px error in EuRoC's corners.
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-12)
@@ -170,6 +171,45 @@ def reject_outliers(xy0: np.ndarray, xy1: np.ndarray, config: FrontendConfig) ->
     return np.ones(n, bool) if inl is None or inl.sum() < _MIN_RANSAC_POINTS else inl
 
 
+def imu_consistent_inliers(xy0: np.ndarray, xy1: np.ndarray, inliers: np.ndarray,
+                           T_c0c1: np.ndarray, config: FrontendConfig) -> np.ndarray:
+    """The RANSAC ``inliers`` (N,) bool of the matches ``xy0 -> xy1`` (N, 2) (undistorted
+    normalised, previous and current frame), or, when the predicted camera motion ``T_c0c1``
+    (4, 4: the current camera in the previous one's frame, from the gyro's rotation and the
+    back end's velocity) does not explain them and does explain the rest, the consensus of the
+    rest (:func:`reject_outliers` on them).
+
+    A moving object that fills the view gives RANSAC its largest consensus, and the static
+    scene becomes the outliers; the window then tracks the object. The rule compares medians
+    of the point-to-epipolar-line distance under the prediction (pixels at
+    :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX`, the translation's direction only): the
+    consensus's above ``config.imu_consensus_px`` and the rest's below
+    ``config.imu_consensus_ratio`` of it. A static scene's consensus agrees with the
+    prediction and its outliers (mistracks) do not, so it is left as it is. Then the tracks of
+    the consensus farther from their predicted lines than ``config.imu_gate_factor`` times its
+    median (and ``config.imu_gate_px``) leave it: an object whose motion a fundamental matrix
+    fits together with the scene's. With no translation predicted nothing is decided.
+    """
+    t = np.asarray(T_c0c1, np.float64)[:3, 3]
+    rest = ~inliers
+    if (not config.imu_consensus or np.linalg.norm(t) < 1e-9 or not inliers.any()
+            or rest.sum() < _MIN_RANSAC_POINTS):
+        return inliers
+    unit = np.eye(4)
+    unit[:3, :3], unit[:3, 3] = np.asarray(T_c0c1)[:3, :3], t / np.linalg.norm(t)
+    error = stereo_epipolar_distance(xy0, xy1, unit) * NOMINAL_FOCAL_PX
+    consensus, others = np.median(error[inliers]), np.median(error[rest])
+    if consensus > config.imu_consensus_px and others < config.imu_consensus_ratio * consensus:
+        swapped = np.zeros_like(inliers)
+        swapped[rest] = reject_outliers(xy0[rest], xy1[rest], config)
+        inliers = swapped if swapped.any() else inliers
+    # a consensus that mixes the object with the scene: its tracks far off the prediction go
+    if inliers.any():
+        gate = max(config.imu_gate_px, config.imu_gate_factor * np.median(error[inliers]))
+        inliers = inliers & (error <= gate)
+    return inliers
+
+
 def _stereo_in_front(xy_left: np.ndarray, xy_right: np.ndarray, T_C0C1: np.ndarray,
                      tolerance: float) -> np.ndarray:
     """(N,) bool: the match triangulates in front of the left camera (``d0 b0 = d1 R b1 + t``
@@ -207,7 +247,8 @@ class FeatureTracker:
         self.right = right
         self.K0 = np.asarray(left.K, dtype=np.float64)
         self.D0 = np.asarray(left.distortion, dtype=np.float64)
-        self.R_BC0 = np.asarray(left.T_BS, dtype=np.float64)[:3, :3]
+        self.T_BC0 = np.asarray(left.T_BS, dtype=np.float64)
+        self.R_BC0 = self.T_BC0[:3, :3]
         if right is not None:
             self.K1 = np.asarray(right.K, dtype=np.float64)
             self.D1 = np.asarray(right.distortion, dtype=np.float64)
@@ -340,6 +381,13 @@ class FeatureTracker:
             uv_r[~seeded], ok[~seeded] = self._flow_fb(img, img_r, pts[~seeded])
         return uv_r, ok
 
+    def _camera_motion(self, R_b0_b1: np.ndarray, t_b0_b1: np.ndarray) -> np.ndarray:
+        """(4, 4) the left camera's pose now in its previous frame, from the body's (rotation
+        ``R_b0_b1``, translation ``t_b0_b1`` (3,) in the previous body frame)."""
+        T_b0b1 = np.eye(4)
+        T_b0b1[:3, :3], T_b0b1[:3, 3] = R_b0_b1, t_b0_b1
+        return np.linalg.inv(self.T_BC0) @ T_b0b1 @ self.T_BC0
+
     def _predict(self, R_b0_b1: np.ndarray) -> np.ndarray:
         """Pixels of the previous corners after the body rotation ``R_b0_b1`` alone."""
         R_c0_c1 = body_to_camera_rotation(R_b0_b1, self.R_BC0)
@@ -378,7 +426,8 @@ class FeatureTracker:
 
     def track(self, t: float, img_left: np.ndarray, img_right: np.ndarray | None = None,
               R_prev_curr_gyro: np.ndarray | None = None,
-              exclude: np.ndarray | None = None) -> FrameFeatures:
+              exclude: np.ndarray | None = None,
+              t_prev_curr_body: np.ndarray | None = None) -> FrameFeatures:
         """Track one stereo frame.
 
         Args:
@@ -392,6 +441,10 @@ class FeatureTracker:
                 or ``None``: tracks inside them (grown by ``exclude_margin``) end and no corner
                 is detected there, so a target that fills the view does not outvote the
                 static scene in the outlier check and the window.
+            t_prev_curr_body: (3,) m, the body's predicted translation since the previous
+                frame, in the previous body frame (the back end's velocity times the
+                interval), or ``None``. With ``R_prev_curr_gyro`` it checks the outlier
+                test's consensus (:func:`imu_consistent_inliers`).
 
         Returns:
             The frame's :class:`FrameFeatures`. Black, blank or textureless images give zero
@@ -434,8 +487,14 @@ class FeatureTracker:
                 # before the outlier check: a moving object's corners must not vote in it
                 ok &= ~self._excluded(cur, boxes)
             if ok.any():
-                ok[ok] = reject_outliers(self._undistort(pts[ok], self.K0, self.D0),
-                                         self._undistort(cur[ok], self.K0, self.D0), cfg)
+                xy0 = self._undistort(pts[ok], self.K0, self.D0)
+                xy1 = self._undistort(cur[ok], self.K0, self.D0)
+                inliers = reject_outliers(xy0, xy1, cfg)
+                if R_prev_curr_gyro is not None and t_prev_curr_body is not None:
+                    inliers = imu_consistent_inliers(
+                        xy0, xy1, inliers, self._camera_motion(R_prev_curr_gyro,
+                                                               t_prev_curr_body), cfg)
+                ok[ok] = inliers
             pts, ids, age = cur[ok].astype(np.float32), ids[ok], age[ok] + 1
             trans_flow = trans_flow[ok]
         else:

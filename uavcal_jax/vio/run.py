@@ -271,9 +271,9 @@ def estimate_stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]],
     VINS-Fusion's threads; each estimate's ``timings["wall"]`` is then the wall-clock time
     since the previous estimate (the throughput a caller sees). Otherwise the stages
     alternate in this thread. Either way the front end of frame ``k + 1`` is seeded with the
-    gyro bias published before ``update(k)`` (:meth:`StereoVio.flow_bias`, snapshotted when
-    the task is handed out), so
-    both modes give identical estimates, run after run.
+    gyro bias and velocity published before ``update(k)`` (:meth:`StereoVio.flow_seed`,
+    snapshotted when the task is handed out), so both modes give identical estimates, run
+    after run.
     """
     with one_blas_thread():
         yield from _stream(vio, inputs, pipelined)
@@ -281,20 +281,20 @@ def estimate_stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]],
 
 def _stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]], pipelined: bool
             ) -> Iterator[FrameEstimate]:
-    # The front end of frame k + 1 is seeded with the gyro bias published before update(k)
-    # runs, in both modes: it is all a pipelined front end can have seen, and snapshotting it
+    # The front end of frame k + 1 is seeded with what was published before update(k) runs,
+    # in both modes: it is all a pipelined front end can have seen, and snapshotting it
     # when the task is handed out (not reading it while update(k) writes it) makes a run
     # reproducible and the two modes identical.
-    def front(load, bias_gyro):
+    def front(load, seed):
         t_ns, left, right, *exclude = load()
-        return vio.track(t_ns, left, right, bias_gyro, *exclude)
+        return vio.track(t_ns, left, right, seed, *exclude)
 
     last = time.perf_counter()
     if not pipelined:
-        seed = vio.flow_bias()
+        seed = vio.flow_seed()
         for load in inputs:
             tracked = front(load, seed)
-            seed = vio.flow_bias()
+            seed = vio.flow_seed()
             est = vio.update(tracked)
             now = time.perf_counter()
             est.timings["wall"] = 1e3 * (now - last)
@@ -304,11 +304,11 @@ def _stream(vio: StereoVio, inputs: Iterable[Callable[[], tuple]], pipelined: bo
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="vio-frontend") as pool:
         it = iter(inputs)
         first = next(it, None)
-        pending = pool.submit(front, first, vio.flow_bias()) if first is not None else None
+        pending = pool.submit(front, first, vio.flow_seed()) if first is not None else None
         while pending is not None:
             tracked = pending.result()
             nxt = next(it, None)
-            pending = pool.submit(front, nxt, vio.flow_bias()) if nxt is not None else None
+            pending = pool.submit(front, nxt, vio.flow_seed()) if nxt is not None else None
             est = vio.update(tracked)
             now = time.perf_counter()
             est.timings["wall"] = 1e3 * (now - last)

@@ -255,7 +255,8 @@ def descend_offset(problems: list[WindowProblem], params: list[CalibParams],
     the Hessian (``L`` is half a chi-square per window, so the information of all ``K``
     windows is ``K P``), ``loss`` (steps + 1,) history, ``estimates``, ``hessian`` (6, 6) and
     its ``hessian_eigenvalues``, ``first_eval_s`` (the first evaluation, compilation
-    included). Call under ``jax.enable_x64(True)``.
+    included) and ``finite``: false (and the rest NaN) when a cost, gradient or Hessian was not
+    finite (a solve that diverged). Call under ``jax.enable_x64(True)``.
     """
     log = log or (lambda _: None)
     solver = StructuredSolver(SolverConfig(max_iterations=cfg.max_iterations, ftol=cfg.ftol))
@@ -272,6 +273,8 @@ def descend_offset(problems: list[WindowProblem], params: list[CalibParams],
     loss, g, xs = loss_grad(o, xs)
     first_s = time.perf_counter() - t
     log(f"start: loss {loss:.4f}  (first evaluation, compile included, {first_s:.1f} s)")
+    if not (np.isfinite(loss) and np.all(np.isfinite(g))):
+        return _no_estimate(loss, first_s)
 
     # Hessian of the reduced loss by forward differences of the implicit gradient; the
     # loss is near-quadratic in o, so one estimate at the start serves every step
@@ -281,6 +284,8 @@ def descend_offset(problems: list[WindowProblem], params: list[CalibParams],
         _, g_i, _ = loss_grad(o + h[i] * np.eye(6)[i], xs)
         P[:, i] = (g_i - g) / h[i]
     P = 0.5 * (P + P.T)
+    if not np.all(np.isfinite(P)):
+        return _no_estimate(loss, first_s)
     eig = np.linalg.eigvalsh(P)
     log(f"Hessian eigenvalues {np.array2string(eig, precision=3)}")
     # diag, or a Hessian that differences left indefinite: per-channel scaling only
@@ -314,7 +319,16 @@ def descend_offset(problems: list[WindowProblem], params: list[CalibParams],
             f"o {np.array2string(o, precision=4)}")
     return {"estimate": o, "sigma": sigma, "loss": np.asarray(losses),
             "estimates": np.asarray(estimates), "hessian": P, "hessian_eigenvalues": eig,
-            "first_eval_s": first_s}
+            "first_eval_s": first_s, "finite": True}
+
+
+def _no_estimate(loss: float, first_s: float) -> dict:
+    """:func:`descend_offset`'s answer when a window's cost, gradient or Hessian is not
+    finite (a solve that diverged): NaN estimate, ``finite`` false."""
+    nan6 = np.full(6, np.nan)
+    return {"estimate": nan6, "sigma": nan6, "loss": np.array([loss]),
+            "estimates": nan6[None], "hessian": np.full((6, 6), np.nan),
+            "hessian_eigenvalues": nan6, "first_eval_s": first_s, "finite": False}
 
 
 def recover_offset(offset, cfg: SelfCalibConfig = SelfCalibConfig(),
