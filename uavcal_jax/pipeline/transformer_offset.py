@@ -4,7 +4,9 @@
 The recording is cut into the run's windows, every window gets the model's estimate, and the
 median over windows is the recording's (:func:`uavcal_jax.calib.predict.predict_on_sequence`).
 What it estimates is what it was trained to predict: the run's label in force
-(:attr:`uavcal_jax.calib.config.InjectionConfig.target`).
+(:attr:`uavcal_jax.calib.config.InjectionConfig.target`). An IMU mounted otherwise than in
+the training flights (gravity past :data:`MOUNTING_TOLERANCE_DEG` from theirs) is tilted into
+their mounting for the model, and the estimate turned back (:func:`mounting_alignment`).
 """
 
 from __future__ import annotations
@@ -108,7 +110,6 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
     angle = info.get("gravity_angle_deg")
     if angle is not None and angle > MOUNTING_TOLERANCE_DEG:
         info, prediction = _predict_remounted(sequence, options, info, prediction)
-    duration_ns = int(round(run.window.duration * 1e9))
     duration_ns = int(round(run.window.duration * 1e9))
     start_ns = prediction.start_ns
     return OffsetEstimate(
