@@ -2,7 +2,8 @@
 machine over two phases.
 
 * Front end (:meth:`StereoVio.track`): corners tracked by the optical flow, seeded by the gyro
-  rotation since the previous frame (:mod:`uavcal_jax.vio.imu_slice`).
+  rotation since the previous frame (:mod:`uavcal_jax.vio.imu_slice`); the back end's last
+  velocity (:meth:`StereoVio.flow_seed`) checks the outlier test's consensus.
 * **No window** (``waiting`` before the first pose, ``coasting`` on the IMU after a reset): a
   frame with ``min_init_landmarks`` usable stereo matches opens a window (``initialized``)
   under a gauge prior. The first start is levelled by the accelerometer and at rest
@@ -23,6 +24,10 @@ machine over two phases.
 A frame without features still enters the window with its IMU interval only. Output: one
 :class:`FrameEstimate` per frame; :func:`~uavcal_jax.vio.run.run_vio` runs a whole sequence.
 The back end runs under ``jax.enable_x64(True)`` (switched on around its calls).
+
+One module, over 450 lines: one estimator's state machine, whose phases (no window, window,
+reset) share the window, the IMU stream and the failure counters; the numerics each phase
+calls live in the modules named above.
 """
 
 from __future__ import annotations

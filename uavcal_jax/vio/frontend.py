@@ -8,7 +8,9 @@ For each stereo frame :meth:`FeatureTracker.track`:
    (seeded by the gyro-predicted positions when a rotation is given), tracks them back and
    keeps those landing within ``fb_threshold_px`` of where they started, away from the border;
 3. rejects outliers by RANSAC on the undistorted points (VINS-Mono's ``rejectWithF``; VINS-
-   Fusion has it commented out);
+   Fusion has it commented out), its consensus checked against the IMU-predicted motion when
+   the back end's velocity is given (:func:`imu_consistent_inliers`: a moving object that
+   fills the view must not outvote the static scene);
 4. keeps the surviving corners at least ``min_distance_px`` apart, longest-tracked first, and
    when fewer than ``redetect_below`` remain adds ``goodFeaturesToTrack`` corners outside their
    exclusion circles, up to ``max_features``, each with a new persistent id;
@@ -25,7 +27,7 @@ model of :mod:`uavcal_jax.geometry.camera` -- iterated to convergence.
 
 One module, over 450 lines: the five steps above are one tracker's per-frame pass over its own
 state (previous corners, ids, track ages, previous disparities); the pure pieces that another
-caller uses (outlier rejection, the epipolar distance) are module functions.
+caller uses (outlier rejection, its IMU check, the epipolar distance) are module functions.
 """
 
 from __future__ import annotations
@@ -248,6 +250,7 @@ class FeatureTracker:
         self.K0 = np.asarray(left.K, dtype=np.float64)
         self.D0 = np.asarray(left.distortion, dtype=np.float64)
         self.T_BC0 = np.asarray(left.T_BS, dtype=np.float64)
+        self.T_C0B = np.linalg.inv(self.T_BC0)
         self.R_BC0 = self.T_BC0[:3, :3]
         if right is not None:
             self.K1 = np.asarray(right.K, dtype=np.float64)
@@ -386,7 +389,7 @@ class FeatureTracker:
         ``R_b0_b1``, translation ``t_b0_b1`` (3,) in the previous body frame)."""
         T_b0b1 = np.eye(4)
         T_b0b1[:3, :3], T_b0b1[:3, 3] = R_b0_b1, t_b0_b1
-        return np.linalg.inv(self.T_BC0) @ T_b0b1 @ self.T_BC0
+        return self.T_C0B @ T_b0b1 @ self.T_BC0
 
     def _predict(self, R_b0_b1: np.ndarray) -> np.ndarray:
         """Pixels of the previous corners after the body rotation ``R_b0_b1`` alone."""
