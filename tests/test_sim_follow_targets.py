@@ -164,6 +164,22 @@ def test_planner_moves_stops_turns_in_view_of_a_hovering_camera():
     assert gap.min() > np.hypot(*half[0, :2]) + np.hypot(*half[1, :2])
 
 
+def test_viewing_floor_puts_the_image_centre_at_the_preferred_distance():
+    req = _hover_request(1)
+    c, axis = req.T_WC[0, :3, 3], req.T_WC[0, :3, 2]
+    for classes, preferred in (([0], ft.PREFERRED_DISTANCE_M[0]), ([1], ft.PREFERRED_DISTANCE_M[1]),
+                               ([1, 0], max(ft.PREFERRED_DISTANCE_M))):
+        floor = ft.viewing_floor_z(req, classes)
+        s = (floor - c[2]) / axis[2]  # along the unit optical axis to the floor
+        assert s == pytest.approx(preferred, rel=1e-9), classes
+    down = _hover_request(1)
+    down.T_WC[:, :3, :3] = np.diag([1.0, -1.0, -1.0])  # straight down: the depth is capped
+    assert ft.viewing_floor_z(down, [0]) == pytest.approx(c[2] - ft.MAX_VIEWING_DEPTH_M)
+    up = _hover_request(1)
+    up.T_WC[:, :3, :3] = np.eye(3)  # looks straight up
+    assert ft.viewing_floor_z(up, [0]) == float("inf")
+
+
 def test_make_scene_places_follow_targets_first_off_obstacles_below_the_flight():
     req = _hover_request(2, seconds=6.0)
     path = req.T_WC[:, :3, 3]
@@ -176,6 +192,7 @@ def test_make_scene_places_follow_targets_first_off_obstacles_below_the_flight()
     assert list(np.asarray(tg.class_id)[:2]) == [0, 1]
     floor = float(scn.room_lo[2])
     assert lo[2] - floor >= MAX_TARGET_HEIGHT  # no target reaches the drone
+    assert floor <= ft.viewing_floor_z(req, [0, 1]) + 1e-5  # and the car can be seen whole
     np.testing.assert_allclose(np.asarray(tg.z)[:2], floor + np.asarray(tg.half_extents)[:2, 2],
                                atol=1e-5)
     track = np.asarray(tg.track)[:2]

@@ -43,6 +43,7 @@ __all__ = [
     "aim_points",
     "follow_request",
     "plan_tracks",
+    "viewing_floor_z",
 ]
 
 #: Planning and track sample rate, Hz.
@@ -52,6 +53,9 @@ PREFERRED_DISTANCE_M = (8.0, 4.0)
 #: Score per unit of a ray's image offset from the centre (a fraction of the half height),
 #: against ``|log(distance / preferred)|``.
 CENTRE_WEIGHT = 0.6
+#: Deepest floor below the flight's median camera height that :func:`viewing_floor_z` asks
+#: for (a camera looking straight down), metres.
+MAX_VIEWING_DEPTH_M = 8.0
 #: Wander radius, a fraction of the footprint's width at the aim (clipped to 0.3-3 m).
 WANDER = 0.12
 #: Several targets spread across this fraction of the footprint's width either side of the
@@ -157,6 +161,28 @@ def aim_points(req: FollowRequest, floor_z: float, preferred_m: float
     dist_f = _fill(np.where(valid, dist[k, j], 0.0)[:, None], valid,
                    np.full((k.size, 1), preferred_m))[:, 0]
     return aim, dist_f, valid
+
+
+def viewing_floor_z(req: FollowRequest, class_ids) -> float:
+    """Highest floor z (world metres) at which the left camera, at its median height and median
+    depression, sees the floor at the image centre no nearer than the largest preferred viewing
+    distance of ``class_ids`` (:data:`PREFERRED_DISTANCE_M`); ``inf`` (no limit) when the
+    median optical axis points above the horizon.
+
+    A low flight with a camera pitched down sees a floor close below it: a car 3 m away fills
+    half the image and leaves it at the top and bottom edges, which no follower (and no
+    detector) is built for. The hall's floor, the simulator's own choice, goes down instead
+    until the target can be seen whole, as it is from the heights followers fly at (PX4's
+    follow-target mode defaults to 8 m above the target). Flights whose camera looks nearly
+    level (EuRoC's rig) ask for a floor above the one the flight's clearance already sets.
+    """
+    preferred = max(PREFERRED_DISTANCE_M[int(c)] for c in np.atleast_1d(class_ids))
+    axis_z = req.T_WC[:, 2, 2]  # world z of the optical axis (unit vector)
+    depression = np.arcsin(np.clip(-float(np.median(axis_z)), -1.0, 1.0))
+    if depression <= 0.0:
+        return float("inf")
+    depth = min(preferred * np.sin(depression), MAX_VIEWING_DEPTH_M)
+    return float(np.median(req.T_WC[:, 2, 3]) - depth)
 
 
 def _wrap(a):

@@ -15,7 +15,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from uavcal_jax.sim.follow_targets import FollowRequest, plan_tracks
+from uavcal_jax.sim.follow_targets import FollowRequest, plan_tracks, viewing_floor_z
 from uavcal_jax.sim.scene import CAR, CLASS_NAMES, PERSON, Scene, SceneConfig, Targets
 from uavcal_jax.sim.textures import detail_quads, face_atlas
 
@@ -185,10 +185,15 @@ def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
     return targets
 
 
+def _follow_classes(cfg, n: int) -> list[int]:
+    """Class ids of ``n`` follow targets: they cycle through ``cfg.target_classes``."""
+    return [int(cfg.target_classes[i % len(cfg.target_classes)]) for i in range(n)]
+
+
 def _follow_targets(rng, cfg, req: FollowRequest, floor: float) -> list[dict]:
     """Follow targets along ``req`` (:mod:`uavcal_jax.sim.follow_targets`): classes cycle
     through ``cfg.target_classes``; target dicts as :func:`_place_targets`' plus the track."""
-    classes = [int(cfg.target_classes[i % len(cfg.target_classes)]) for i in range(req.n)]
+    classes = _follow_classes(cfg, req.n)
     halves = np.stack([_target_size(rng, c) for c in classes])
     tracks = plan_tracks(req, floor, rng, classes, halves)
     out = []
@@ -263,7 +268,9 @@ def make_scene(
         follow: ``follow.n`` follow targets to plan along the left camera's view
             (:mod:`uavcal_jax.sim.follow_targets`); they are targets ``0 .. n-1``, the
             ordinary ones follow. The floor is then at least the tallest target plus the
-            clearance below the flight (no target can touch the drone), the hall grows to
+            clearance below the flight (no target can touch the drone), and deep enough for
+            the camera to see them whole (:func:`~uavcal_jax.sim.follow_targets.viewing_floor_z`),
+            the hall grows to
             hold their tracks, and obstacles and the other targets keep off their tracks and
             their lines of sight from the camera.
 
@@ -284,6 +291,7 @@ def make_scene(
     followers: list[dict] = []
     avoid = None
     if follow is not None:
+        room_lo[2] = min(room_lo[2], viewing_floor_z(follow, _follow_classes(cfg, follow.n)))
         followers = _follow_targets(rng, cfg, follow, float(room_lo[2]))
         for tg in followers:  # the hall holds the tracks, with a metre to spare
             room_lo[:2] = np.minimum(room_lo[:2], tg["track"][:, :2].min(0) - tg["reach"] - 1)
