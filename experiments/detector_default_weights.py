@@ -69,9 +69,10 @@ EUROC_TRAIN = ("MH_01_easy", "V1_02_medium", "MH_03_medium", "V2_01_easy", "V1_0
                "MH_05_difficult", "V2_02_medium", "MH_02_easy", "V1_01_easy")
 #: UZH-FPV indoor trajectories trained on, flown with ``body_frame="flu"``.
 UZH_TRAIN = ("indoor_forward_3", "indoor_45_2", "indoor_forward_9", "indoor_45_13")
-#: The UZH-FPV flights' rig pitch below forward, degrees (the 45-degree flights' camera is
-#: steeper; a forward racer's looks at the horizon and sees no floor target).
-UZH_PITCH_DEG = 30.0
+#: The UZH-FPV flights' rig pitch below forward, degrees: the 45-degree flights' as recorded
+#: (their followed car is seen from steeply above), the forward racers' 30 (their real camera
+#: looks at the horizon and sees no floor target).
+UZH_PITCH_DEG = {"indoor_45": 45.0, "indoor_forward": 30.0}
 #: Seconds into a trajectory file where its flight starts (EuRoC's MAV is still on the
 #: ground before).
 TRAJ_START_S = 20.0
@@ -105,7 +106,7 @@ def flights(args) -> list[tuple[str, SimConfig]]:
                                trajectory=str(trajectory_dir(DATA_ROOT, "uzh_fpv") /
                                               f"{stem}.txt"),
                                start=TRAJ_START_S, body_frame="flu",
-                               camera_pitch_deg=UZH_PITCH_DEG)))
+                               camera_pitch_deg=UZH_PITCH_DEG[stem.rsplit("_", 1)[0]])))
     return out
 
 
@@ -140,7 +141,7 @@ def main() -> None:
     ap.add_argument("--procedural", type=int, default=8, help="procedural flights")
     ap.add_argument("--euroc-flights", type=int, default=6,
                     help=f"EuRoC trajectories, the first of {EUROC_TRAIN}")
-    ap.add_argument("--uzh-flights", type=int, default=2,
+    ap.add_argument("--uzh-flights", type=int, default=4,
                     help=f"UZH-FPV indoor trajectories, the first of {UZH_TRAIN}")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
     ap.add_argument("--rate", type=positive, default=2.0, help="frames per second rendered")

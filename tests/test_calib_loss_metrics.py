@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from uavcal_jax.calib.config import LossConfig
-from uavcal_jax.calib.loss import calibration_loss
+from uavcal_jax.calib.loss import calibration_loss, gaussian_nll
 from uavcal_jax.calib.metrics import calibration_metrics, metric_sums, metrics_from_sums
 
 
@@ -122,3 +122,23 @@ def test_sums_accumulate_over_batches(pair):
 def test_no_positives_gives_zero_f1_not_nan():
     m = calibration_metrics(-jnp.ones((3, 6)), -jnp.ones((3, 6)))
     assert float(m["sign_f1"]) == 0.0 and float(m["offset_rmse"]) == 0.0
+
+
+def test_gaussian_nll_is_scipys_less_its_constant_and_teaches_only_sigma(pair):
+    from scipy.stats import norm
+
+    pred, target = pair
+    log_sigma = jnp.asarray(np.random.default_rng(3).normal(-1.0, 0.5, pred.shape), jnp.float32)
+    want = -norm.logpdf(np.asarray(target), np.asarray(pred), np.exp(np.asarray(log_sigma)))
+    got = gaussian_nll(pred, log_sigma, target)
+    np.testing.assert_allclose(float(got), want.mean() - 0.5 * np.log(2 * np.pi), rtol=1e-5)
+    weight = jnp.asarray([1.0] + [0.0] * (pred.shape[0] - 1))
+    np.testing.assert_allclose(float(gaussian_nll(pred, log_sigma, target, weight)),
+                               want[0].mean() - 0.5 * np.log(2 * np.pi), rtol=1e-5)
+    g_pred, g_sigma = jax.grad(gaussian_nll, argnums=(0, 1))(pred, log_sigma, target)
+    assert float(jnp.abs(g_pred).max()) == 0.0  # the estimate's gradient is stopped
+    # sigma = |error| is the minimum of each term: zero gradient there
+    at_error = jnp.log(jnp.abs(target - pred))
+    np.testing.assert_allclose(jax.grad(gaussian_nll, argnums=1)(pred, at_error, target), 0.0,
+                               atol=1e-6)
+    assert float(jnp.abs(g_sigma).max()) > 0

@@ -177,3 +177,45 @@ def test_total_label_adds_the_sensor_bias_to_the_offset(single):
     total = eval_step(state, {**BATCH, "offset": offset, "bias": bias})
     np.testing.assert_array_equal(np.asarray(total["pred"]), np.asarray(injected["pred"]))
     assert float(injected["offset"]) > 1e-3 and float(total["offset"]) < 1e-9
+
+
+
+def test_uncertainty_head_leaves_the_estimate_alone(single):
+    """``model.variance``: the offsets' parameters after ``STEPS`` steps are those of the model
+    without it, to rounding (the NLL's gradient is stopped before the decoder, Adam is per
+    parameter), the uncertainty head moves, and evaluation scores the z-scores' spread."""
+    from uavcal_jax.calib.metrics import metrics_from_sums
+    from uavcal_jax.calib.model import split_prediction
+    from uavcal_jax.config import apply_overrides
+
+    init, (plain, _) = single
+    config = apply_overrides(CONFIG, ["model.variance=true"])
+    state = create_train_state(config, jax.random.key(0), BATCH)
+
+    def without_sigma(params):
+        head = dict(params["noise_predictor"])
+        sigma = head.pop("sigma_head")
+        return {**params, "noise_predictor": head}, sigma
+
+    start, sigma0 = without_sigma(state.params)
+    assert _max_diff(start, init.params) == 0  # adding the head changes no other draw
+    for i in range(STEPS):
+        state, m = train_step(state, BATCH, step_keys(i))
+    assert np.isfinite(float(m["nll"]))
+    trained, sigma = without_sigma(state.params)
+    assert _max_diff(trained, plain.params) < 1e-7  # the same, to XLA's rounding
+    assert _max_diff(sigma, sigma0) > 1e-4
+
+    offsets = np.tile(np.float32([0.02, -0.01, 0.03, 0.1, -0.2, 0.05]), (4, 1))
+    out = eval_step(state, {**BATCH, "offset": offsets})
+    full = state.model.apply(state.variables(), BATCH["frames"], BATCH["imu"] + offsets[:, None]
+                             * BATCH["mask"][..., None], BATCH["mask"])
+    pred, log_sigma = split_prediction(np.asarray(full), config.model)
+    np.testing.assert_allclose(pred, out["pred"], atol=1e-5)
+    np.testing.assert_allclose(log_sigma, out["log_sigma"], atol=1e-5)
+    z = (pred - offsets) / np.exp(log_sigma)
+    scores = metrics_from_sums(out["sums"])
+    np.testing.assert_allclose(scores["z_rms_per_channel"], np.sqrt(np.mean(z ** 2, 0)),
+                               rtol=1e-4)
+    np.testing.assert_allclose(scores["sigma_rms"], np.sqrt(np.mean(np.exp(2 * log_sigma))),
+                               rtol=1e-4)

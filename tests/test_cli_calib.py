@@ -397,3 +397,32 @@ def test_transformer_tilts_an_imu_mounted_otherwise_back(euroc_micro, monkeypatc
     monkeypatch.setattr(transformer_offset, "MOUNTING_TOLERANCE_DEG", 180.0)
     raw = run_method("transformer", turned, options)
     assert np.max(np.abs(raw.offset[:3] - R_BI.T @ true[:3])) > 0.01
+
+
+def test_a_run_with_an_uncertainty_predicts_one(seqs, tmp_path, capsys):
+    """``model.variance``: evaluation scores the z-scores' spread, and ``calib predict`` gives
+    ``sigma``, the median over windows of the K-seed mixture's standard deviation, computed
+    here from the training code's eval step."""
+    run = tmp_path / "variance"
+    assert _train(seqs, run, "--set", "model.variance=true") == 0
+    capsys.readouterr()
+    trial = run / "trial_00"
+    assert main(["calib", "eval", str(trial), "--json"]) == 0
+    metrics = json.loads(capsys.readouterr().out)["trials"][0]["metrics"]
+    assert all(np.isfinite(m["z_rms"]) and m["z_rms"] > 0 for m in metrics)
+    assert len(metrics[0]["z_rms_per_channel"]) == 6
+
+    inject = np.array([0.03, -0.02, 0.01, 0.2, -0.1, 0.05])
+    assert main(["calib", "predict", "--method", "transformer", "--checkpoint", str(trial),
+                 "--sequence", str(seqs / "seq1"), "--inject", ",".join(map(str, inject)),
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    parts = load_windows([seqs / "seq1"], WindowConfig(duration=2, size=(64, 36)))
+    state, seeds = restore_run(trial, parts)
+    batch = gather(parts, np.arange(5), state.config.model, "gyro")
+    batch["offset"] = np.broadcast_to(inject.astype(np.float32), (5, 6)).copy()
+    out = eval_step_seeds(state, batch)
+    pred, log_sigma = np.asarray(out["pred"]), np.asarray(out["log_sigma"])  # (K, W, C)
+    sigma = np.sqrt(np.exp(2 * log_sigma).mean(0) + pred.var(0))
+    np.testing.assert_allclose(res["per_window"], pred.mean(0), atol=2e-5)
+    np.testing.assert_allclose(res["sigma"], np.median(sigma, axis=0), rtol=1e-4)

@@ -146,6 +146,16 @@ class ModelConfig:
             about 1e-3 rad/s of the gyro error, so a correction in the offset's own units
             (1.0) lets training noise undo it; the shipped weights use 0.05. Channels
             without a closed form keep the full unit.
+        variance: also predict each channel's uncertainty: a second head on the decoder's
+            output (its gradient stopped there) gives a value per channel, ``v``, and the
+            model returns ``(B, 2C)``: the offsets, then
+            ``log sigma`` with ``sigma = correction unit * offset_std * exp(v)`` (``v``
+            zero-initialised: an untrained model claims one correction unit), the standard
+            deviation of the estimate's error (rad/s, m/s^2).
+            :func:`~uavcal_jax.calib.model.split_prediction` splits them. It is trained by
+            the Gaussian negative log-likelihood of the label (``LossConfig.w_nll``) with the
+            offsets' gradient stopped, so the estimate learns exactly as without it (the same
+            parameters, step for step); needs ``standardize``.
     """
 
     d_model: int = 256
@@ -168,6 +178,7 @@ class ModelConfig:
     closed_form: str = "none"
     motion_tokens: bool = False
     correction_scale: float = 1.0
+    variance: bool = False
 
     def __post_init__(self) -> None:
         if self.d_model <= 0 or self.heads <= 0 or self.d_model % self.heads:
@@ -195,6 +206,8 @@ class ModelConfig:
         if self.closed_form in ROTATION_CLOSED_FORMS and not self.motion_tokens:
             raise ValueError(f"closed_form={self.closed_form!r} needs motion_tokens (the "
                              "rotation residuals it solves from)")
+        if self.variance and not self.standardize:
+            raise ValueError("variance needs standardize (its unit is the offsets' spread)")
         if not self.correction_scale > 0:
             raise ValueError(f"correction_scale must be > 0, got {self.correction_scale}")
         if self.frame_encoder_dtype not in FRAME_ENCODER_DTYPES:
@@ -219,6 +232,8 @@ class LossConfig:
         units: ``"si"``: the offset and magnitude MSEs in rad/s and m/s^2 mixed (as
             written); ``"standardized"``: each channel's differences in units of the
             protocol's offset standard deviation (see :mod:`uavcal_jax.calib.loss`).
+        w_nll: weight of the Gaussian negative log-likelihood that trains a model's
+            uncertainty (``ModelConfig.variance``; unused without it).
     """
 
     sign_term: str = "sign"
@@ -227,6 +242,7 @@ class LossConfig:
     w_sign: float = 1.0
     w_magnitude: float = 1.0
     units: str = "si"
+    w_nll: float = 1.0
 
     def __post_init__(self) -> None:
         if self.sign_term not in SIGN_TERMS:
@@ -235,6 +251,8 @@ class LossConfig:
             raise ValueError(f"units must be one of {LOSS_UNITS}, got {self.units!r}")
         if self.tau <= 0:
             raise ValueError(f"tau must be positive, got {self.tau}")
+        if self.w_nll < 0:
+            raise ValueError(f"w_nll must be >= 0, got {self.w_nll}")
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,11 @@ offset and magnitude differences of channel ``c`` are divided by ``scale_c``, th
 deviation of the offsets the protocol draws, so every channel weighs alike whatever its unit
 and spread (under the raw mean a channel with a 10x smaller spread contributes 100x less
 gradient, and the network learns it last).
+
+A model with an uncertainty output (``ModelConfig.variance``) adds ``w_nll`` times
+:func:`gaussian_nll`, the negative log-likelihood of the label under ``N(o_hat, sigma^2)``
+per channel, with ``o_hat``'s gradient stopped: the uncertainty learns the estimate's error,
+and the estimate learns exactly as eq. 18 alone would teach it.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import jax.numpy as jnp
 
 from uavcal_jax.calib.config import LossConfig
 
-__all__ = ["calibration_loss", "loss_terms"]
+__all__ = ["calibration_loss", "gaussian_nll", "loss_terms"]
 
 
 def _mse(a: jax.Array, b: jax.Array, weight: jax.Array | None,
@@ -78,3 +83,18 @@ def calibration_loss(pred: jax.Array, target: jax.Array, config: LossConfig | No
     total = (config.w_offset * terms["offset"] + config.w_sign * terms["sign"]
              + config.w_magnitude * terms["magnitude"])
     return total, terms
+
+
+def gaussian_nll(pred: jax.Array, log_sigma: jax.Array, target: jax.Array,
+                 weight: jax.Array | None = None) -> jax.Array:
+    """Mean over windows and channels of ``0.5 ((o - o_hat) / sigma)^2 + log sigma`` (the
+    Gaussian negative log-likelihood less its constant), scalar, for ``pred``, ``log_sigma``
+    and ``target`` ``(B, C)``; ``weight (B,)`` (0/1) leaves padded windows out. ``pred``'s
+    gradient is stopped (see the module docstring)."""
+    z = (target.astype(jnp.float32) - jax.lax.stop_gradient(pred.astype(jnp.float32))
+         ) * jnp.exp(-log_sigma.astype(jnp.float32))
+    term = 0.5 * jnp.square(z) + log_sigma.astype(jnp.float32)
+    if weight is None:
+        return jnp.mean(term)
+    w = jnp.broadcast_to(weight[:, None].astype(term.dtype), term.shape)
+    return jnp.sum(term * w) / jnp.maximum(jnp.sum(w), 1.0)

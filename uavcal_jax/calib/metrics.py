@@ -32,17 +32,24 @@ __all__ = ["SENSORS", "calibration_metrics", "metric_sums", "metrics_from_sums",
 SENSORS = (("gyro", "g"), ("accel", "a"))
 
 
-def metric_sums(pred: jax.Array, target: jax.Array,
-                weight: jax.Array | None = None) -> dict[str, jax.Array]:
+def metric_sums(pred: jax.Array, target: jax.Array, weight: jax.Array | None = None,
+                log_sigma: jax.Array | None = None) -> dict[str, jax.Array]:
     """Per-channel sums ``(C,)`` over windows of ``pred``/``target`` ``(B, C)``: ``tp``,
     ``fp``, ``fn``, ``sq_offset``, ``sq_magnitude`` and ``count``; ``weight (B,)`` (0/1)
-    leaves padded windows out."""
+    leaves padded windows out. With a predicted uncertainty ``log_sigma (B, C)``
+    (``ModelConfig.variance``) also ``sq_z`` (the squared z-scores ``(pred - target) /
+    sigma``) and ``sq_sigma``."""
     pred = pred.astype(jnp.float32)
     target = target.astype(jnp.float32)
     w = jnp.ones(pred.shape[0], jnp.float32) if weight is None else weight.astype(jnp.float32)
     w = w[:, None]
     pp, tp_ = pred > 0, target > 0
-    return {
+    spread = {}
+    if log_sigma is not None:
+        log_sigma = log_sigma.astype(jnp.float32)
+        spread = {"sq_z": jnp.sum(w * jnp.square((pred - target) * jnp.exp(-log_sigma)), axis=0),
+                  "sq_sigma": jnp.sum(w * jnp.exp(2.0 * log_sigma), axis=0)}
+    return {**spread,
         "tp": jnp.sum(w * (pp & tp_), axis=0),
         "fp": jnp.sum(w * (pp & ~tp_), axis=0),
         "fn": jnp.sum(w * (~pp & tp_), axis=0),
@@ -68,11 +75,17 @@ def _scores(tp, fp, fn, sq_o, sq_m, count):
 
 def metrics_from_sums(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
     """Scores from (accumulated) :func:`metric_sums`: each of ``sign_precision``,
-    ``sign_recall``, ``sign_f1``, ``magnitude_rmse``, ``offset_rmse`` overall (scalar) and,
-    with the suffix ``_per_channel``, per channel ``(C,)``."""
+    ``sign_recall``, ``sign_f1``, ``magnitude_rmse``, ``offset_rmse`` (and, with an
+    uncertainty, ``z_rms``: the z-scores' spread, 1 for a calibrated one; ``sigma_rms``: the
+    predicted sigma's root mean square, beside ``offset_rmse``) overall (scalar) and, with
+    the suffix ``_per_channel``, per channel ``(C,)``."""
     keys = ("tp", "fp", "fn", "sq_offset", "sq_magnitude", "count")
     per = _scores(*(sums[k] for k in keys))
     overall = _scores(*(jnp.sum(sums[k]) for k in keys))
+    if "sq_z" in sums:  # a predicted uncertainty: calibrated when z_rms is 1
+        for key, name in (("sq_z", "z_rms"), ("sq_sigma", "sigma_rms")):
+            per[name] = jnp.sqrt(_ratio(sums[key], sums["count"]))
+            overall[name] = jnp.sqrt(_ratio(jnp.sum(sums[key]), jnp.sum(sums["count"])))
     return {**overall, **{f"{k}_per_channel": v for k, v in per.items()}}
 
 

@@ -44,6 +44,12 @@ is summed into the fused sequence with ``T_v + T_i``. ``closed_form="rotation_ls
 the head at the rotation residuals' least-squares gyro error (``"rotation_window_mean"``: the
 same, with the window mean on the accelerometer).
 
+**Uncertainty** (``ModelConfig.variance``): a second linear head on the decoder's output,
+its gradient stopped there (the offsets' features are not trained by it), gives each channel's
+log standard deviation of the estimate's error, ``log(unit) + v`` (``unit`` the correction's,
+in rad/s or m/s^2), trained by the Gaussian negative log-likelihood
+(:func:`uavcal_jax.calib.loss.gaussian_nll`).
+
 The frame encoder depends on one frame only, so :meth:`Calibrator.encode_frames` and
 :meth:`Calibrator.predict_from_frame_tokens` split the model at the frame tokens: over a
 sequence each frame is encoded once and its token reused by every window holding it
@@ -68,7 +74,8 @@ from uavcal_jax.data.color import LUMA_WEIGHTS
 from uavcal_jax.geometry import so3
 
 __all__ = ["GRAY_WEIGHTS", "MOTION_KEYS", "NORMALIZATION", "NORMALIZATION_NAMES", "Calibrator",
-           "build_model", "compose_intervals", "patchify", "rotation_residuals"]
+           "build_model", "compose_intervals", "patchify", "rotation_residuals",
+           "split_prediction"]
 
 F32 = jnp.float32
 
@@ -244,7 +251,8 @@ class MotionTokens(nn.Module):
 
 
 class NoisePredictor(nn.Module):
-    """NPB (eq. 10-11): ``T_v + T_i (B, n, d)`` -> offsets ``(B, C)``."""
+    """NPB (eq. 10-11): ``T_v + T_i (B, n, d)`` -> offsets ``(B, C)`` (with ``variance``
+    ``(B, 2C)``: then the uncertainty head's output)."""
 
     config: ModelConfig
 
@@ -259,14 +267,23 @@ class NoisePredictor(nn.Module):
         out = Decoder(c, name="decoder")(query, memory, mask, deterministic=deterministic)
         # standardised: start at the mean offset, so training only has to improve on it
         head_init = nn.initializers.zeros if c.standardize else LINEAR_INIT
-        return nn.Dense(c.imu_channels, dtype=F32, param_dtype=F32, kernel_init=head_init,
-                        name="head")(out[:, 0])
+        offsets = nn.Dense(c.imu_channels, dtype=F32, param_dtype=F32, kernel_init=head_init,
+                           name="head")(out[:, 0])
+        if not c.variance:
+            return offsets
+        # the uncertainty reads the offsets' features without training them: the estimate
+        # learns exactly as without it
+        scale = nn.Dense(c.imu_channels, dtype=F32, param_dtype=F32,
+                         kernel_init=nn.initializers.zeros,
+                         name="sigma_head")(jax.lax.stop_gradient(out[:, 0]))
+        return jnp.concatenate([offsets, scale], axis=-1)
 
 
 class Calibrator(nn.Module):
     """The whole model; see the module docstring.
 
-    ``__call__(frames, imu, mask, motion=None, deterministic=True) -> offsets (B, C)`` with
+    ``__call__(frames, imu, mask, motion=None, deterministic=True) -> offsets (B, C)``
+    (``(B, 2C)`` with ``variance``: :func:`split_prediction`) with
     ``frames`` ``(B, n, h, w)`` / ``(B, n, 3, h, w)`` (ignored, may be ``None``, when
     ``use_video`` is False), ``imu (B, n, C)``, ``mask (B, n)`` bool (``True`` on real
     frames) and, with ``motion_tokens``, ``motion`` (:data:`MOTION_KEYS`).
@@ -337,8 +354,12 @@ class Calibrator(nn.Module):
             tokens = tokens + self.motion_tokens((-r - m) / s, valid)
         out = self.noise_predictor(tokens, mask, deterministic=deterministic)
         if c.standardize:
-            out = (self._closed_form(raw, mask, norm, residual)
-                   + norm["offset_std"] * self._correction_unit(out.shape[-1]) * out)
+            channels = c.imu_channels
+            unit = norm["offset_std"] * self._correction_unit(channels)
+            offsets = self._closed_form(raw, mask, norm, residual) + unit * out[..., :channels]
+            if not c.variance:
+                return offsets
+            return jnp.concatenate([offsets, jnp.log(unit) + out[..., channels:]], axis=-1)
         return out
 
     def _correction_unit(self, channels: int) -> jax.Array:
@@ -378,6 +399,16 @@ class Calibrator(nn.Module):
             frame_tokens = self.encode_frames(frames, mask, deterministic=deterministic)
         return self.predict_from_frame_tokens(frame_tokens, imu, mask, motion,
                                               deterministic=deterministic)
+
+
+def split_prediction(out: jax.Array, config: ModelConfig
+                     ) -> tuple[jax.Array, jax.Array | None]:
+    """``(offsets (..., C), log_sigma (..., C) or None)`` of a model's output ``out``: with
+    ``config.variance`` the output holds both (``(..., 2C)``), otherwise the offsets alone."""
+    if not config.variance:
+        return out, None
+    c = config.imu_channels
+    return out[..., :c], out[..., c:]
 
 
 def _window_mean(imu: jax.Array, mask: jax.Array) -> jax.Array:

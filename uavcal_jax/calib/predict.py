@@ -30,6 +30,7 @@ from uavcal_jax.calib.data import Windows, find_sequences, mask_black_frames
 from uavcal_jax.calib.inference import encode_frames, predict_windows
 from uavcal_jax.calib.inject import inject
 from uavcal_jax.calib.loop import first_seed, read_run_config, restore_run
+from uavcal_jax.calib.model import split_prediction
 from uavcal_jax.calib.train import CalibState
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.sequence import Sequence
@@ -58,6 +59,10 @@ class SequencePrediction(NamedTuple):
         median: ``(C,)`` the median of ``per_window`` over windows: the sequence's estimate.
         channels: the names of the ``C`` channels.
         start_ns: ``(W,)`` int64 window start times, ns (the recording's clock).
+        per_window_sigma: ``(W, C)`` each window's predicted uncertainty (the standard
+            deviation of its estimate's error; over seeds, the root of the mean variance
+            plus the seeds' spread), for a model with ``ModelConfig.variance``; else
+            ``None``.
     """
 
     per_window: np.ndarray
@@ -66,6 +71,13 @@ class SequencePrediction(NamedTuple):
     median: np.ndarray
     channels: tuple[str, ...]
     start_ns: np.ndarray | None = None
+    per_window_sigma: np.ndarray | None = None
+
+    @property
+    def sigma(self) -> np.ndarray | None:
+        """``(C,)`` the median over windows of :attr:`per_window_sigma` (``None`` without)."""
+        return None if self.per_window_sigma is None else np.median(self.per_window_sigma,
+                                                                    axis=0)
 
 
 def channel_names(channels: int, sensor: str) -> tuple[str, ...]:
@@ -131,7 +143,7 @@ def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
         if inject_offset is not None:  # the same gyro offset in every full-rate sample
             shift = np.asarray(inject_offset, np.float32).reshape(-1)[:3]
             motion["gyro_seq"] = motion["gyro_seq"] + shift
-    per_seed = []
+    per_seed, per_seed_log_sigma = [], []
     for s in _seed_states(state, seeds):
         tokens = None if frames is None else encode_frames(s.model, s.variables(), frames)
         out = []
@@ -140,13 +152,19 @@ def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
             part = None if motion is None else {k: v[sel] for k, v in motion.items()}
             out.append(np.asarray(predict_windows(s.model, s.variables(), tokens, index[sel],
                                                   mask[sel], imu[sel], part)))
-        per_seed.append(np.concatenate(out)[:len(all_idx)])
+        offsets, log_sigma = split_prediction(np.concatenate(out)[:len(all_idx)], model_cfg)
+        per_seed.append(offsets)
+        per_seed_log_sigma.append(log_sigma)
     per_seed_arr = np.stack(per_seed).astype(np.float64)
     per_window = per_seed_arr.mean(axis=0)
+    sigma = None
+    if model_cfg.variance:  # the seeds as a mixture: mean variance plus their spread
+        variance = np.exp(2.0 * np.stack(per_seed_log_sigma).astype(np.float64))
+        sigma = np.sqrt(variance.mean(axis=0) + per_seed_arr.var(axis=0))
     start_s = (windows.start_ns - windows.frame_t_ns[0]) * 1e-9
     return SequencePrediction(per_window, per_seed_arr, start_s, np.median(per_window, axis=0),
                               channel_names(per_window.shape[1], sensor),
-                              np.asarray(windows.start_ns, np.int64))
+                              np.asarray(windows.start_ns, np.int64), sigma)
 
 
 def mounting_angle_deg(accel: np.ndarray, training_mean: np.ndarray) -> float:
@@ -248,6 +266,7 @@ def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = 
         **info, "sequence": str(sequence),
         "offset": prediction.median.tolist(),
         "per_window_std": prediction.per_window.std(axis=0).tolist(),
+        "sigma": None if prediction.sigma is None else prediction.sigma.tolist(),
         "per_window": prediction.per_window.tolist(),
         "window_start_s": prediction.start_s.tolist(),
         "injected": None if inject_offset is None else np.asarray(inject_offset,

@@ -15,7 +15,9 @@ every sample of ``gyro_seq`` as to ``imu`` (:func:`_motion`).
   the state), injects it, and takes one AdamW step on the eq. 18 loss.
 - :func:`eval_step` ``(state, batch) -> metrics``: injects ``batch["offset"]``, predicts in
   deterministic mode, returns the loss terms, the metric sums of
-  :func:`uavcal_jax.calib.metrics.metric_sums` (add them over batches) and ``pred``.
+  :func:`uavcal_jax.calib.metrics.metric_sums` (add them over batches) and ``pred`` (and, for
+  a model with an uncertainty, ``ModelConfig.variance``, ``log_sigma``; the loss then adds
+  the Gaussian NLL term ``nll``).
 - K seeds: :func:`create_train_states` builds K independently initialised states stacked on
   a leading axis (one key each) and :func:`train_step_seeds` / :func:`eval_step_seeds` step
   all of them at once with ``jax.vmap`` (one batch, K keys: own dropout and offset streams).
@@ -46,9 +48,9 @@ from uavcal_jax.calib.inject import (
     offset_moments,
     training_offsets,
 )
-from uavcal_jax.calib.loss import calibration_loss
+from uavcal_jax.calib.loss import calibration_loss, gaussian_nll
 from uavcal_jax.calib.metrics import metric_sums
-from uavcal_jax.calib.model import MOTION_KEYS, NORMALIZATION, Calibrator
+from uavcal_jax.calib.model import MOTION_KEYS, NORMALIZATION, Calibrator, split_prediction
 
 __all__ = [
     "CalibState",
@@ -231,6 +233,17 @@ def _label(batch: dict, offsets: jax.Array) -> jax.Array:
     return offsets + batch["bias"] if "bias" in batch else offsets
 
 
+def _loss(state: CalibState, pred, log_sigma, target, weight):
+    """Eq. 18 (:func:`~uavcal_jax.calib.loss.calibration_loss`), plus ``w_nll`` times the
+    uncertainty's negative log-likelihood (term ``nll``) for a model that predicts one."""
+    config = state.config.loss
+    loss, terms = calibration_loss(pred, target, config, weight, _offset_scale(state))
+    if log_sigma is None:
+        return loss, terms
+    nll = gaussian_nll(pred, log_sigma, target, weight)
+    return loss + config.w_nll * nll, {**terms, "nll": nll}
+
+
 def _train_step(state: CalibState, batch: dict, key: jax.Array):
     config = state.config
     frames, clean, mask = _inputs(config, batch)
@@ -242,10 +255,10 @@ def _train_step(state: CalibState, batch: dict, key: jax.Array):
     target = _label(batch, offsets)
 
     def loss_fn(params):
-        pred, stats = _apply(state, params, frames, imu, mask, train=True, key=k_dropout,
-                             motion=motion)
-        loss, terms = calibration_loss(pred, target, config.loss, weight,
-                                       _offset_scale(state))
+        out, stats = _apply(state, params, frames, imu, mask, train=True, key=k_dropout,
+                            motion=motion)
+        pred, log_sigma = split_prediction(out, config.model)
+        loss, terms = _loss(state, pred, log_sigma, target, weight)
         return loss, (terms, stats, pred)
 
     (loss, (terms, batch_stats, pred)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
@@ -265,11 +278,14 @@ def _eval_step(state: CalibState, batch: dict):
     frames, clean, mask = _inputs(config, batch)
     weight = _weight(batch, clean.shape[0])
     offsets = jnp.asarray(batch["offset"], jnp.float32)
-    pred, _ = _apply(state, state.params, frames, inject(clean, offsets, mask), mask,
-                     train=False, motion=_motion(config, batch, offsets))
+    out, _ = _apply(state, state.params, frames, inject(clean, offsets, mask), mask,
+                    train=False, motion=_motion(config, batch, offsets))
+    pred, log_sigma = split_prediction(out, config.model)
     target = _label(batch, offsets)
-    loss, terms = calibration_loss(pred, target, config.loss, weight, _offset_scale(state))
-    return {"loss": loss, **terms, "sums": metric_sums(pred, target, weight), "pred": pred}
+    loss, terms = _loss(state, pred, log_sigma, target, weight)
+    result = {"loss": loss, **terms, "sums": metric_sums(pred, target, weight, log_sigma),
+              "pred": pred}
+    return result if log_sigma is None else {**result, "log_sigma": log_sigma}
 
 
 @jax.jit

@@ -110,6 +110,8 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
     angle = info.get("gravity_angle_deg")
     if angle is not None and angle > MOUNTING_TOLERANCE_DEG:
         info, prediction = _predict_remounted(sequence, options, info, prediction)
+    if prediction.sigma is not None:  # a model with an uncertainty (model.variance)
+        info = {**info, "sigma": prediction.sigma.tolist()}
     duration_ns = int(round(run.window.duration * 1e9))
     start_ns = prediction.start_ns
     return OffsetEstimate(
@@ -171,10 +173,13 @@ def _predict_remounted(sequence: Sequence, options: TransformerOptions, info: di
                                        rotation_source=turned_rotations)
     back = R.T  # the estimate is in the turned frame
     channels = list(turned.channels)
+    sigma = turned.per_window_sigma
+    if sigma is not None:  # independent errors per channel: the variances turn by R^2
+        sigma = np.sqrt(_rotate_channels(np.square(sigma), channels, np.square(back)))
     prediction = turned._replace(
         per_window=_rotate_channels(turned.per_window, channels, back),
         per_seed=_rotate_channels(turned.per_seed, channels, back),
-        median=_rotate_channels(turned.median, channels, back))
+        median=_rotate_channels(turned.median, channels, back), per_window_sigma=sigma)
     info = {**info, "gravity_angle_deg": angle,
             "mounting_alignment_deg": float(np.degrees(Rotation.from_matrix(R).magnitude()))}
     warnings.warn(OutOfDomainWarning(
