@@ -119,8 +119,9 @@ def _table(pooled: dict, hybrid_rows: list[dict], args) -> str:
              "| --- | --- | --- | --- | --- |"]
     for method, s in pooled.items():
         axes = ", ".join(f"{c} {v:.4f}" for c, v in s["rmse"].items())
+        z = "" if s.get("z_rms") is None else f"; z-scores' RMS {s['z_rms']:.2f}"
         lines.append(f"| {method} | {_fmt(s['gyro_rmse'])} | {_fmt(s['accel_rmse'])} | "
-                     f"{s['sign_f1']:.3f} | {axes} |")
+                     f"{s['sign_f1']:.3f} | {axes}{z} |")
     if hybrid_rows:
         lines += ["", f"## Hybrid V1_01 (real IMU, {args.hybrid_duration:g} s): error against "
                   "the real sensor's bias (EuRoC ground-truth estimate)", "",

@@ -91,6 +91,7 @@ def main() -> None:
                "epochs_run": res["epochs"], "best_epoch": res["best_epoch"],
                "val_offset_rmse": best.get("val_offset_rmse"),
                "val_sign_f1": best.get("val_sign_f1"),
+               "val_z_rms": best.get("val_z_rms"),
                "baseline_offset_rmse": best.get("baseline_offset_rmse"),
                "window_mean_offset_rmse": best.get("window_mean_offset_rmse"),
                "simulate_s": round(t_sim, 1), "wall_s": round(time.perf_counter() - t0, 1),

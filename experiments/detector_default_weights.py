@@ -46,6 +46,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from uavcal_jax.argtypes import positive, positive_int, print_json
 from uavcal_jax.config import apply_overrides
 from uavcal_jax.detect.datasets import concat_datasets, load_dataset
@@ -68,13 +70,14 @@ FLIGHT_SEED = 2000
 EUROC_TRAIN = ("MH_01_easy", "V1_02_medium", "MH_03_medium", "V2_01_easy", "V1_03_difficult",
                "MH_05_difficult", "V2_02_medium", "MH_02_easy", "V1_01_easy")
 #: UZH-FPV indoor trajectories trained on, flown with ``body_frame="flu"``.
-UZH_TRAIN = ("indoor_forward_3", "indoor_45_2", "indoor_forward_9", "indoor_45_13")
+UZH_TRAIN = ("indoor_forward_3", "indoor_45_2", "indoor_45_13", "indoor_forward_7",
+             "indoor_forward_9", "indoor_45_14")
 #: The UZH-FPV flights' rig pitch below forward, degrees: the 45-degree flights' as recorded
 #: (their followed car is seen from steeply above), the forward racers' 30 (their real camera
 #: looks at the horizon and sees no floor target).
 UZH_PITCH_DEG = {"indoor_45": 45.0, "indoor_forward": 30.0}
 #: Seconds into a trajectory file where its flight starts (EuRoC's MAV is still on the
-#: ground before).
+#: ground before), or earlier where the file would end first.
 TRAJ_START_S = 20.0
 #: Moving targets placed in view of every flight.
 FOLLOW_TARGETS = 2
@@ -102,10 +105,11 @@ def flights(args) -> list[tuple[str, SimConfig]]:
                                trajectory=str(trajectory_dir(DATA_ROOT, "euroc") / f"{stem}.txt"),
                                start=TRAJ_START_S)))
     for i, stem in enumerate(UZH_TRAIN[:args.uzh_flights]):
+        path = trajectory_dir(DATA_ROOT, "uzh_fpv") / f"{stem}.txt"
+        stamps = np.loadtxt(path, usecols=0, ndmin=1)
+        start = max(0.0, min(TRAJ_START_S, float(stamps[-1] - stamps[0]) - args.duration))
         out.append((stem, _sim(args.rate, args.duration, FLIGHT_SEED + 200 + i,
-                               trajectory=str(trajectory_dir(DATA_ROOT, "uzh_fpv") /
-                                              f"{stem}.txt"),
-                               start=TRAJ_START_S, body_frame="flu",
+                               trajectory=str(path), start=start, body_frame="flu",
                                camera_pitch_deg=UZH_PITCH_DEG[stem.rsplit("_", 1)[0]])))
     return out
 

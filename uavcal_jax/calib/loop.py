@@ -423,6 +423,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
                            val_metrics=v["metrics"],
                            baseline_offset_rmse=v["baseline_mean_offset"]["offset_rmse"],
                            window_mean_offset_rmse=v["baseline_window_mean"]["offset_rmse"])
+                if "z_rms" in v["metrics"][0]:  # a model with an uncertainty: its calibration
+                    row["val_z_rms"] = float(np.mean([m["z_rms"] for m in v["metrics"]]))
             monitored = row["val_loss"] if loop.monitor == "val" else row["loss"]
             es, stopped = early_stopping_update(es, monitored, epoch + 1,
                                                 config.train.patience)

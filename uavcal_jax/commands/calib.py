@@ -56,13 +56,15 @@ Estimate the constant offset in a recording's IMU (what to subtract: gyro rad/s,
 m/s^2 on a 40 s simulated flight, the shipped transformer's up to 0.03 and 0.11) runs the
 stereo VIO and takes the median of its bias states over the tracked frames of the last two
 thirds of the flight; --method transformer cuts the recording into a trained calibrator's
-windows and takes the median of its per-window estimates. No method sees the ground truth.
-Each is scored afterwards against its label: vio-bias estimates the total constant error (the
-offsets known to be in the IMU plus the sensor's own bias, the mean of the ground truth's bias
-columns), a transformer what its run was trained on (injection.label). The offsets are known
-when the recording is a simulated one made with `uavcal simulate --imu-offset`
-(sim_config.json) and/or --inject adds one; then the error is printed too. With --out, the
-configuration it ran with goes to OUT.config.json (e.g. offsets.config.json)."""
+windows and takes the median of its per-window estimates (a run trained with model.variance, as
+the shipped weights are, also gives `sigma`, its predicted error's standard deviation per
+window, median over windows). No method sees the ground truth. Each is scored afterwards
+against its label: vio-bias estimates the total constant error (the offsets known to be in the
+IMU plus the sensor's own bias, the mean of the ground truth's bias columns), a transformer
+what its run was trained on (injection.label). The offsets are known when the recording is a
+simulated one made with `uavcal simulate --imu-offset` (sim_config.json) and/or --inject adds
+one; then the error is printed too. With --out, the configuration it ran with goes to
+OUT.config.json (e.g. offsets.config.json)."""
 
 PREDICT_EPILOG = """\
 methods:
@@ -402,6 +404,8 @@ def run_predict(args) -> int:
         return 0
     rows = {"estimate (median)": estimate.median,
             f"{estimate.item} spread": np.asarray(summary["per_window_std"])}
+    if summary.get("sigma") is not None:  # a model with an uncertainty (model.variance)
+        rows["predicted sigma"] = np.asarray(summary["sigma"])
     if true is not None:
         rows.update({f"true ({summary['label']})": true, "error": np.asarray(summary["error"])})
     print(_headline(summary))

@@ -34,8 +34,9 @@ def score_recordings(recordings: Iterable[str | Path], methods: Iterable[str], *
                      options: Mapping[str, Any] | None = None, inject=None,
                      progress: bool = False) -> list[dict]:
     """One row per recording and method: ``recording``, ``method``, ``channels``, ``offset``
-    and ``true`` (in those channels), ``error`` and ``seconds``. Recordings whose truth is
-    unknown (no ``true``) are scored ``None``.
+    and ``true`` (in those channels), ``error``, ``sigma`` (a method's predicted standard
+    deviation of its error, or ``None``) and ``seconds``. Recordings whose truth is unknown
+    (no ``true``) are scored ``None``.
 
     Args:
         recordings: EuRoC/ASL folders (or bags) with ground truth, e.g. simulated ones.
@@ -57,6 +58,7 @@ def score_recordings(recordings: Iterable[str | Path], methods: Iterable[str], *
             rows.append({"recording": str(recording), "method": method,
                          "channels": summary["channels"], "offset": summary["offset"],
                          "true": summary["true"], "error": summary["error"],
+                         "sigma": summary.get("sigma"),
                          "seconds": round(time.perf_counter() - t0, 2)})
     return rows
 
@@ -73,7 +75,9 @@ def _scores(pred: np.ndarray, true: np.ndarray, channels: list[str]) -> dict:
 def pooled_scores(rows: list[dict]) -> dict[str, dict]:
     """Per method (in the rows' order), then :data:`NO_CORRECTION`: ``channels``, ``rmse``
     per channel, ``gyro_rmse`` / ``accel_rmse`` (``None`` for a sensor it does not estimate),
-    ``sign_f1`` and ``recordings``, over the rows whose truth is known. No correction is
+    ``sign_f1`` and ``recordings``, over the rows whose truth is known (and ``z_rms``, the
+    root mean square of error / sigma over recordings and channels, for a method whose rows
+    all carry a predicted ``sigma``: 1 for a calibrated one). No correction is
     scored on every channel whose truth some method's row gives."""
     out: dict[str, dict] = {}
     truths: dict[str, dict[str, float]] = {}
@@ -85,6 +89,9 @@ def pooled_scores(rows: list[dict]) -> dict[str, dict]:
         pred = np.array([r["offset"] for r in scored], np.float64)
         true = np.array([r["true"] for r in scored], np.float64)
         out[method] = _scores(pred, true, channels)
+        if all(r.get("sigma") is not None for r in scored):  # the z-scores' spread
+            z = (pred - true) / np.array([r["sigma"] for r in scored], np.float64)
+            out[method]["z_rms"] = float(np.sqrt(np.mean(np.square(z))))
         for r in scored:
             truths.setdefault(r["recording"], {}).update(zip(r["channels"], r["true"],
                                                              strict=True))
