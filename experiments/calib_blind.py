@@ -119,7 +119,8 @@ def _table(pooled: dict, hybrid_rows: list[dict], args) -> str:
              "| --- | --- | --- | --- | --- |"]
     for method, s in pooled.items():
         axes = ", ".join(f"{c} {v:.4f}" for c, v in s["rmse"].items())
-        z = "" if s.get("z_rms") is None else f"; z-scores' RMS {s['z_rms']:.2f}"
+        z = "" if s.get("gyro_z_rms") is None else (
+            f"; z-scores' RMS gyro {s['gyro_z_rms']:.2f}, accel {s['accel_z_rms']:.2f}")
         lines.append(f"| {method} | {_fmt(s['gyro_rmse'])} | {_fmt(s['accel_rmse'])} | "
                      f"{s['sign_f1']:.3f} | {axes}{z} |")
     if hybrid_rows:

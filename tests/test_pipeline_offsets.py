@@ -238,10 +238,11 @@ def test_pooled_scores_per_channel_sensor_and_no_correction():
     none = pooled[NO_CORRECTION]
     assert none["accel_rmse"] == pytest.approx(np.sqrt(np.mean(true[:, 3:] ** 2)))
     assert none["sign_f1"] == 0.0
-    assert "z_rms" not in a  # no method predicted a sigma
-    sigma = np.full(6, 0.01)
-    z = pooled_scores([{**r, "sigma": sigma.tolist()} for r in rows[:2]])["a"]["z_rms"]
-    assert z == pytest.approx(np.sqrt(np.mean((err / sigma) ** 2)))
+    assert "gyro_z_rms" not in a  # no method predicted a sigma
+    sigma = np.array([0.01] * 3 + [0.1] * 3)
+    z = pooled_scores([{**r, "sigma": sigma.tolist()} for r in rows[:2]])["a"]
+    assert z["gyro_z_rms"] == pytest.approx(np.sqrt(np.mean((err[:, :3] / 0.01) ** 2)))
+    assert z["accel_z_rms"] == pytest.approx(np.sqrt(np.mean((err[:, 3:] / 0.1) ** 2)))
 
 
 def test_self_calib_recovers_the_gyro_through_the_vios_own_windows(flight, cli_run):

@@ -216,6 +216,23 @@ def test_followed_chain_bridges_an_identity_break_and_not_another_target():
     assert (alone[:12] >= 0).all() and (alone[12:] < 0).all()
 
 
+def test_a_part_boxed_beside_its_target_is_dropped_and_other_targets_kept():
+    car = [100.0, 100.0, 300.0, 400.0]
+    bonnet = [110.0, 90.0, 290.0, 200.0]  # 90 % of it inside the car's box (IoU 0.27)
+    neighbour = [280.0, 120.0, 480.0, 420.0]  # another car overlapping the first by 10 %
+    person = [150.0, 200.0, 200.0, 330.0]  # inside the car's box, but another class
+    boxes = np.array([bonnet, car, neighbour, person])
+    classes = np.array([0, 0, 0, 1])
+    assert A.box_iou(np.array([bonnet]), np.array([car]))[0, 0] < 0.3  # NMS keeps both
+    keep = A.contained_duplicates(boxes, classes, 0.6)
+    np.testing.assert_array_equal(keep, [False, True, True, True])
+    np.testing.assert_array_equal(A.contained_duplicates(boxes, classes, 0.95), [True] * 4)
+    np.testing.assert_array_equal(A.contained_duplicates(boxes, classes, None), [True] * 4)
+    assert A.contained_duplicates(np.zeros((0, 4)), np.zeros(0), 0.6).shape == (0,)
+    with pytest.raises(ValueError, match="merge_contained"):
+        A.AssociateConfig(merge_contained=0.0)
+
+
 def test_box_iou_against_hand_values():
     iou = A.box_iou(np.array([[0.0, 0.0, 10.0, 10.0]]),
                     np.array([[5.0, 0.0, 15.0, 10.0], [20.0, 20.0, 30.0, 30.0],

@@ -20,7 +20,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from uavcal_jax.calib.metrics import calibration_metrics, sensor_rmse
+from uavcal_jax.calib.metrics import SENSORS, calibration_metrics, sensor_rmse
 from uavcal_jax.pipeline.offset_estimate import SIX_CHANNELS
 from uavcal_jax.pipeline.predict_offset import predict_offset
 
@@ -75,9 +75,10 @@ def _scores(pred: np.ndarray, true: np.ndarray, channels: list[str]) -> dict:
 def pooled_scores(rows: list[dict]) -> dict[str, dict]:
     """Per method (in the rows' order), then :data:`NO_CORRECTION`: ``channels``, ``rmse``
     per channel, ``gyro_rmse`` / ``accel_rmse`` (``None`` for a sensor it does not estimate),
-    ``sign_f1`` and ``recordings``, over the rows whose truth is known (and ``z_rms``, the
-    root mean square of error / sigma over recordings and channels, for a method whose rows
-    all carry a predicted ``sigma``: 1 for a calibrated one). No correction is
+    ``sign_f1`` and ``recordings``, over the rows whose truth is known (and ``gyro_z_rms`` /
+    ``accel_z_rms``, the root mean square of error / sigma over recordings and the sensor's
+    channels, for a method whose rows all carry a predicted ``sigma``: 1 for a calibrated
+    one). No correction is
     scored on every channel whose truth some method's row gives."""
     out: dict[str, dict] = {}
     truths: dict[str, dict[str, float]] = {}
@@ -91,7 +92,10 @@ def pooled_scores(rows: list[dict]) -> dict[str, dict]:
         out[method] = _scores(pred, true, channels)
         if all(r.get("sigma") is not None for r in scored):  # the z-scores' spread
             z = (pred - true) / np.array([r["sigma"] for r in scored], np.float64)
-            out[method]["z_rms"] = float(np.sqrt(np.mean(np.square(z))))
+            for sensor, head in SENSORS:
+                pick = [j for j, c in enumerate(channels) if c.startswith(head)]
+                out[method][f"{sensor}_z_rms"] = (float(np.sqrt(np.mean(np.square(z[:, pick]))))
+                                                  if pick else None)
         for r in scored:
             truths.setdefault(r["recording"], {}).update(zip(r["channels"], r["true"],
                                                              strict=True))

@@ -3,7 +3,8 @@
 The middle of ``uavcal run`` (:func:`uavcal_jax.pipeline.run.run_pipeline`), after the VIO
 and the detector have run over a recording:
 
-1. the detections of every detected frame are associated into tracks
+1. the detections of every detected frame, less the boxes of a part of a larger one
+   (:func:`uavcal_jax.track.associate.contained_duplicates`), are associated into tracks
    (:func:`uavcal_jax.track.associate.assign_track_ids`) and the longest track of the class
    to follow is the target (:func:`~uavcal_jax.track.associate.longest_track`), its length
    counted in boxes inside the image (a box cut by the border cannot be located), continued
@@ -45,6 +46,7 @@ from uavcal_jax.track import (
     REASONS,
     FilterOutput,
     assign_track_ids,
+    contained_duplicates,
     cut_by_border,
     followed_detections,
     locate_box,
@@ -169,7 +171,8 @@ class TargetResult:
     Attributes:
         class_name, class_id: the class followed.
         track_id: the followed track (``None``: no detection of the class).
-        track_ids: per left frame, the track id of each detection (``None``: not detected).
+        track_ids: per left frame, the track id of each detection (``None``: not detected;
+            -1: a part of a larger box, :func:`~uavcal_jax.track.associate.contained_duplicates`).
         boxes: (T, 4) the followed track's box per frame (NaN where it has none).
         scores: (T,) its score (NaN where none).
         raw_frames: (R,) the frames whose box was located; raw_points (R, 3), raw_cov
@@ -287,26 +290,30 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     cam0 = sequence.camera("cam0")
     T = len(cam0)
     ran = [k for k in range(T) if detections[k] is not None]
-    ids_ran = assign_track_ids([detections[k].boxes for k in ran],
-                               [detections[k].classes for k in ran], config.associate)
+    # a part of a target boxed beside the whole is not a target of its own
+    kept = [np.flatnonzero(contained_duplicates(detections[k].boxes, detections[k].classes,
+                                                config.associate.merge_contained))
+            for k in ran]
+    boxes_ran = [detections[k].boxes[i] for k, i in zip(ran, kept, strict=True)]
+    classes_ran = [detections[k].classes[i] for k, i in zip(ran, kept, strict=True)]
+    ids_ran = assign_track_ids(boxes_ran, classes_ran, config.associate)
     track_ids: list[np.ndarray | None] = [None] * T
-    for k, ids in zip(ran, ids_ran, strict=True):
-        track_ids[k] = ids
-    inside = [np.array([localizer.can_locate(b) for b in detections[k].boxes], bool)
-              for k in ran]
-    chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id, inside)
+    for k, ids, index in zip(ran, ids_ran, kept, strict=True):
+        track_ids[k] = np.full(len(detections[k].boxes), -1, np.int64)
+        track_ids[k][index] = ids
+    inside = [np.array([localizer.can_locate(b) for b in frame], bool) for frame in boxes_ran]
+    chosen = longest_track(ids_ran, classes_ran, class_id, inside)
     if chosen is None:  # every box of the class is cut by the border: follow it anyway
-        chosen = longest_track(ids_ran, [detections[k].classes for k in ran], class_id)
+        chosen = longest_track(ids_ran, classes_ran, class_id)
     boxes, scores = np.full((T, 4), np.nan), np.full(T, np.nan)
     raw_frames, points, covs, views, seen_boxes, locate_ms = [], [], [], [], [], []
     not_located: collections.Counter = collections.Counter()
     if chosen is not None:
-        pick = followed_detections(ids_ran, [detections[k].boxes for k in ran],
-                                   [detections[k].classes for k in ran], chosen,
-                                   config.associate)
-        for k, i in zip(ran, pick, strict=True):
+        pick = followed_detections(ids_ran, boxes_ran, classes_ran, chosen, config.associate)
+        for k, i, index in zip(ran, pick, kept, strict=True):
             if i < 0:
                 continue
+            i = index[i]
             boxes[k], scores[k] = detections[k].boxes[i], detections[k].scores[i]
             t0 = time.perf_counter()
             located = localizer.locate(k, boxes[k], poses[k])

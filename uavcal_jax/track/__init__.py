@@ -25,6 +25,7 @@ project (NumPy, JAX, SciPy, and OpenCV for the stereo path). Modules, one job ea
 from uavcal_jax.track.associate import (
     AssociateConfig,
     assign_track_ids,
+    contained_duplicates,
     followed_detections,
     longest_track,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "Located",
     "Setpoint",
     "assign_track_ids",
+    "contained_duplicates",
     "cut_by_border",
     "follow_setpoints",
     "follow_step",
