@@ -46,8 +46,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from uavcal_jax.argtypes import positive, positive_int, print_json
 from uavcal_jax.config import apply_overrides
 from uavcal_jax.detect.datasets import concat_datasets, load_dataset
@@ -70,14 +68,12 @@ FLIGHT_SEED = 2000
 EUROC_TRAIN = ("MH_01_easy", "V1_02_medium", "MH_03_medium", "V2_01_easy", "V1_03_difficult",
                "MH_05_difficult", "V2_02_medium", "MH_02_easy", "V1_01_easy")
 #: UZH-FPV indoor trajectories trained on, flown with ``body_frame="flu"``.
-UZH_TRAIN = ("indoor_forward_3", "indoor_45_2", "indoor_45_13", "indoor_forward_7",
-             "indoor_forward_9", "indoor_45_14")
-#: The UZH-FPV flights' rig pitch below forward, degrees: the 45-degree flights' as recorded
-#: (their followed car is seen from steeply above), the forward racers' 30 (their real camera
-#: looks at the horizon and sees no floor target).
-UZH_PITCH_DEG = {"indoor_45": 45.0, "indoor_forward": 30.0}
+UZH_TRAIN = ("indoor_forward_3", "indoor_45_2", "indoor_forward_9", "indoor_45_13")
+#: The UZH-FPV flights' rig pitch below forward, degrees (the 45-degree flights' camera is
+#: steeper; a forward racer's looks at the horizon and sees no floor target).
+UZH_PITCH_DEG = 30.0
 #: Seconds into a trajectory file where its flight starts (EuRoC's MAV is still on the
-#: ground before), or earlier where the file would end first.
+#: ground before).
 TRAJ_START_S = 20.0
 #: Moving targets placed in view of every flight.
 FOLLOW_TARGETS = 2
@@ -105,12 +101,11 @@ def flights(args) -> list[tuple[str, SimConfig]]:
                                trajectory=str(trajectory_dir(DATA_ROOT, "euroc") / f"{stem}.txt"),
                                start=TRAJ_START_S)))
     for i, stem in enumerate(UZH_TRAIN[:args.uzh_flights]):
-        path = trajectory_dir(DATA_ROOT, "uzh_fpv") / f"{stem}.txt"
-        stamps = np.loadtxt(path, usecols=0, ndmin=1)
-        start = max(0.0, min(TRAJ_START_S, float(stamps[-1] - stamps[0]) - args.duration))
         out.append((stem, _sim(args.rate, args.duration, FLIGHT_SEED + 200 + i,
-                               trajectory=str(path), start=start, body_frame="flu",
-                               camera_pitch_deg=UZH_PITCH_DEG[stem.rsplit("_", 1)[0]])))
+                               trajectory=str(trajectory_dir(DATA_ROOT, "uzh_fpv") /
+                                              f"{stem}.txt"),
+                               start=TRAJ_START_S, body_frame="flu",
+                               camera_pitch_deg=UZH_PITCH_DEG)))
     return out
 
 
@@ -145,7 +140,7 @@ def main() -> None:
     ap.add_argument("--procedural", type=int, default=8, help="procedural flights")
     ap.add_argument("--euroc-flights", type=int, default=6,
                     help=f"EuRoC trajectories, the first of {EUROC_TRAIN}")
-    ap.add_argument("--uzh-flights", type=int, default=4,
+    ap.add_argument("--uzh-flights", type=int, default=2,
                     help=f"UZH-FPV indoor trajectories, the first of {UZH_TRAIN}")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
     ap.add_argument("--rate", type=positive, default=2.0, help="frames per second rendered")
