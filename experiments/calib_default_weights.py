@@ -8,7 +8,8 @@ the ``shipped`` preset (:data:`uavcal_jax.calib.presets.PRESETS`: ``small``'s 16
 32x32 patches, d 64, pre-norm, AdamW 1e-3, with the physical injection protocol -- offsets in
 the range of real IMU biases, like the demo's -- and its ``total`` label, the motion tokens of
 the front end's visual rotations (computed once per flight and cached beside it) with the gyro
-head starting at their least squares, and 2 s windows at the full 20 Hz), a fifth of the
+head starting at their least squares, an uncertainty head (``model.variance``), and 2 s
+windows at the full 20 Hz), a fifth of the
 flights held out for validation, early stopping on the validation loss; then the run's
 ``config.json`` and best checkpoint (optimiser moments dropped,
 :func:`uavcal_jax.calib.loop.export_weights`) go to
@@ -16,7 +17,7 @@ flights held out for validation, early stopping on the validation loss; then the
 
 Usage::
 
-    python experiments/calib_default_weights.py --install          # about 18 min, 2 cores
+    python experiments/calib_default_weights.py --install          # about 20 min, 2 cores
     python experiments/calib_default_weights.py --flights 4 --epochs 2   # a smoke run
 
 Prints the training summary and, as the last line, one JSON object (validation metrics of

@@ -43,12 +43,13 @@ SMALL = CalibRunConfig(
 #: IMU biases, like the demo's) and its ``total`` label (what a user subtracts), the motion
 #: tokens of the front end's visual rotations with the head starting at their least-squares
 #: gyro error and a correction in units of 0.05 offset standard deviations on the gyro (issue
-#: 20), 2 s windows every 0.5 s at the full 20 Hz, at most 60 epochs with patience 6 on the
-#: validation loss, the best checkpoint only.
+#: 20), an uncertainty head (``model.variance``: each window's predicted error standard
+#: deviation), 2 s windows every 0.5 s at the full 20 Hz, at most 60 epochs with patience 6 on
+#: the validation loss, the best checkpoint only.
 SHIPPED = apply_overrides(SMALL, {
     "injection.protocol": "physical", "train.epochs": 60, "train.patience": 6,
     "model.motion_tokens": True, "model.closed_form": "rotation_ls",
-    "model.correction_scale": 0.05, "window.rotations": "visual",
+    "model.correction_scale": 0.05, "model.variance": True, "window.rotations": "visual",
     "window.duration": 2.0, "window.stride": 0.5, "window.frame_step": 1,
     "loop.monitor": "val", "loop.keep": 1})
 #: The named presets (``--preset``).

@@ -11,7 +11,9 @@ Per frame ``j`` (20 Hz; scene time ``t_j`` in seconds since the IMU stream's fir
 3. the stereo VIO (:class:`~uavcal_jax.vio.estimator.StereoVio`) on the pair, with the IMU the
    drone has produced up to ``t_j``, its front end tracking nothing inside the detections
    (``detect.mask_vio``);
-4. the followed box: the detection that overlaps the previous followed box most (IoU at least
+4. the followed box: of the detections less the parts of a larger box
+   (:func:`~uavcal_jax.track.associate.contained_duplicates`), the one that overlaps the
+   previous followed box most (IoU at least
    ``associate.min_iou``); at the start, and after ``associate.max_missed`` frames without one,
    the highest-scoring box of ``detect.follow_class``;
 5. located from the depth image (:func:`uavcal_jax.track.locate.locate_box`) with the pose of
@@ -76,7 +78,9 @@ from uavcal_jax.track import (
     LOST,
     TRACKING,
     UNSEEN,
+    AssociateConfig,
     Setpoint,
+    contained_duplicates,
     cut_by_border,
     follow_step,
     locate_box,
@@ -223,19 +227,22 @@ def _pose(R: np.ndarray, p: np.ndarray) -> np.ndarray:
 class _Chooser:
     """Step 4 of the module docstring: the followed box, frame after frame."""
 
-    def __init__(self, class_id: int, min_iou: float, max_missed: int):
-        self.class_id, self.min_iou, self.max_missed = class_id, min_iou, max_missed
+    def __init__(self, class_id: int, config: AssociateConfig):
+        self.class_id, self.config = class_id, config
         self.box: np.ndarray | None = None
         self.missed = 0
 
     def __call__(self, det: ImageDetections) -> tuple[np.ndarray | None, float]:
-        mine = np.flatnonzero(np.asarray(det.classes) == self.class_id)
+        # a box of a part of a larger one is not a candidate (as in uavcal run's association)
+        whole = contained_duplicates(det.boxes, det.classes, self.config.merge_contained)
+        mine = np.flatnonzero((np.asarray(det.classes) == self.class_id) & whole)
         pick = None
         if mine.size and self.box is not None:
             iou = box_iou(self.box[None], det.boxes[mine])[0]
-            if iou.max() >= self.min_iou:
+            if iou.max() >= self.config.min_iou:
                 pick = mine[int(np.argmax(iou))]
-        if pick is None and mine.size and (self.box is None or self.missed >= self.max_missed):
+        if pick is None and mine.size and (self.box is None
+                                           or self.missed >= self.config.max_missed):
             pick = mine[int(np.argmax(det.scores[mine]))]
         if pick is None:
             self.missed += 1
@@ -334,7 +341,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
     write_imu(flight, 0)
     state = flight.state()
 
-    chooser = _Chooser(follow_id, run.associate.min_iou, run.associate.max_missed)
+    chooser = _Chooser(follow_id, run.associate)
     carry = _filter_start(jnp.zeros(()).dtype)
     sp_pose: Setpoint | None = None  # the follow law's set-point, in the pose's world
     sp_true, yaw_true = start.p.copy(), start.yaw
