@@ -154,8 +154,9 @@ class ModelConfig:
             deviation of the estimate's error (rad/s, m/s^2).
             :func:`~uavcal_jax.calib.model.split_prediction` splits them. It is trained by
             the Gaussian negative log-likelihood of the label (``LossConfig.w_nll``) with the
-            offsets' gradient stopped, so the estimate learns exactly as without it (the same
-            parameters, step for step); needs ``standardize``.
+            offsets' gradient stopped, so the estimate learns as without it (the same
+            parameters step for step, to rounding; early stopping's validation loss holds
+            the NLL too, so the epoch kept may differ); needs ``standardize``.
     """
 
     d_model: int = 256

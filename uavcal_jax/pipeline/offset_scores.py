@@ -78,8 +78,7 @@ def pooled_scores(rows: list[dict]) -> dict[str, dict]:
     ``sign_f1`` and ``recordings``, over the rows whose truth is known (and ``gyro_z_rms`` /
     ``accel_z_rms``, the root mean square of error / sigma over recordings and the sensor's
     channels, for a method whose rows all carry a predicted ``sigma``: 1 for a calibrated
-    one). No correction is
-    scored on every channel whose truth some method's row gives."""
+    one). No correction is scored on every channel whose truth some method's row gives."""
     out: dict[str, dict] = {}
     truths: dict[str, dict[str, float]] = {}
     for method in dict.fromkeys(r["method"] for r in rows):

@@ -64,11 +64,7 @@ class DetectStageConfig:
         every: run the detector on every ``every``-th left frame (1: every frame); the filter
             predicts in between.
         score_threshold: detections scoring below this are dropped (the network detector also
-            applies it as its confidence threshold). 0.6, ByteTrack's score for starting a
-            track, rather than YOLOv5's 0.25 for drawing boxes: the shipped weights score the
-            simulator's followed car at 0.67-0.79 or more (5th percentile over five flights)
-            and boxed a mattress on the real EuRoC V1_01 frames, which hold no target, as a
-            car at 0.49-0.54.
+            applies it as its confidence threshold).
         follow_class: the class name to follow (among the detector's classes); its longest
             track is the target.
         extent: a fixed depth extent of the target along the ray, metres (half of it is added
@@ -92,7 +88,7 @@ class DetectStageConfig:
     """
 
     every: int = 1
-    score_threshold: float = 0.6
+    score_threshold: float = 0.25
     follow_class: str = "car"
     extent: float | None = None
     border_px: float = 1.0
