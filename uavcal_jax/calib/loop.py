@@ -17,6 +17,10 @@ after each epoch's metrics row, so a resumed run first drops rows newer than its
 Early stopping (section 4.4): after ``train.patience`` epochs without improvement of the
 monitored loss (``loop.monitor``: the epoch's training loss, the paper, or the
 validation loss), the mean over seeds. ``best`` is the epoch of the lowest monitored loss.
+
+One module over 450 lines, one job: the loop's side effects (run folder, resume, evaluation
+passes, checkpoint export) share the run's folder layout and key derivation, which a split
+would have to pass between modules.
 """
 
 from __future__ import annotations
