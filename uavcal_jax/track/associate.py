@@ -70,15 +70,19 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pairwise IoU of boxes ``a`` (N, 4) and ``b`` (M, 4) -> (N, M)."""
     a = np.asarray(a, np.float64).reshape(-1, 4)[:, None, :]
     b = np.asarray(b, np.float64).reshape(-1, 4)[None, :, :]
-    wh = np.clip(np.minimum(a[..., 2:], b[..., 2:]) - np.maximum(a[..., :2], b[..., :2]), 0, None)
-    inter = wh[..., 0] * wh[..., 1]
-
+    inter = _intersection(a, b)
     union = _area(a) + _area(b) - inter
     return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
 def _area(x: np.ndarray) -> np.ndarray:
     return np.clip(x[..., 2] - x[..., 0], 0, None) * np.clip(x[..., 3] - x[..., 1], 0, None)
+
+
+def _intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection areas of boxes ``a`` and ``b`` (broadcast, ``(..., 4)``)."""
+    wh = np.clip(np.minimum(a[..., 2:], b[..., 2:]) - np.maximum(a[..., :2], b[..., :2]), 0, None)
+    return wh[..., 0] * wh[..., 1]
 
 
 def contained_duplicates(boxes: np.ndarray, class_ids: np.ndarray,
@@ -92,9 +96,7 @@ def contained_duplicates(boxes: np.ndarray, class_ids: np.ndarray,
     if min_overlap is None or len(boxes) < 2:
         return keep
     area = _area(boxes)
-    wh = np.clip(np.minimum(boxes[:, None, 2:], boxes[None, :, 2:])
-                 - np.maximum(boxes[:, None, :2], boxes[None, :, :2]), 0, None)
-    inter = wh[..., 0] * wh[..., 1]
+    inter = _intersection(boxes[:, None, :], boxes[None, :, :])
     for i in np.argsort(-area, kind="stable"):
         if not keep[i]:
             continue
