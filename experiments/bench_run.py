@@ -91,7 +91,7 @@ def main() -> None:
     args = ap.parse_args()
     recording = args.sequence or cached_simulation(BENCH_FLIGHT, args.cache, "bench_run")
     config = RunConfig()
-    detector = load_network_detector(None, config.detect.score_threshold)
+    detector = load_network_detector(None, config.detect.detector_threshold())
     load_before = os.getloadavg()[0]
     pipeline, alone, compile_s = [], [], {}
     with tempfile.TemporaryDirectory(prefix="bench-run-") as tmp:

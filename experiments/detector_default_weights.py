@@ -6,10 +6,11 @@ with its camera model (exposure, noise, motion blur), ``--rate`` frames a second
 frames: consecutive 20 Hz frames are near copies), along
 
 * ``--procedural`` seeded procedural flights of ``--duration`` s (seeds from
-  :data:`FLIGHT_SEED`: the demo flies seed 0, training starts past it);
+  :data:`FLIGHT_SEED`: the demo flies seed 0, training starts past it), and ``--steep`` more
+  with the rig pitched :data:`STEEP_PITCH_DEG` down;
 * the EuRoC trajectories :data:`EUROC_TRAIN` and the UZH-FPV indoor ones :data:`UZH_TRAIN`
   (``--body-frame flu``, the rig pitched :data:`UZH_PITCH_DEG` down), ``--duration`` s
-  from :data:`TRAJ_START_S` s in (past the take-off);
+  from :data:`TRAJ_START_S` s in (past the take-off; earlier where the file ends first);
 
 each with :data:`FOLLOW_TARGETS` moving targets placed where the camera looks
 (``SimConfig.follow_targets``) besides the scene's own. The flights are rendered once into
@@ -28,8 +29,8 @@ restored as float32), plus that evaluation (``eval.json``), is written atomicall
 
 Usage::
 
-    python experiments/detector_default_weights.py                 # about 40 min, 2 cores
-    python experiments/detector_default_weights.py --procedural 1 --euroc-flights 0 \
+    python experiments/detector_default_weights.py                 # about 32 min, 2 cores
+    python experiments/detector_default_weights.py --procedural 1 --steep 0 --euroc-flights 0 \
         --uzh-flights 0 --duration 4 --epochs 1 --max-steps 2 --out /tmp/det_smoke  # smoke
 
 The last line printed is one JSON object: mAP@0.5 and mAP@0.5:0.95 on the held-out flight
@@ -45,6 +46,8 @@ import shutil
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from uavcal_jax.argtypes import positive, positive_int, print_json
 from uavcal_jax.config import apply_overrides
@@ -64,16 +67,22 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA_ROOT = ROOT.parent / "shared" / "data"
 #: First seed of the procedural flights (the demo flies seed 0).
 FLIGHT_SEED = 2000
+#: The rig's pitch below forward on the ``--steep`` procedural flights, degrees: targets seen
+#: from steeply above, as from a low flight with a camera pitched down (UZH-FPV's 45-degree
+#: rig); EuRoC's rig looks 20 degrees down.
+STEEP_PITCH_DEG = 45.0
 #: EuRoC trajectories trained on (MH_04_difficult and V2_03_difficult stay held out).
 EUROC_TRAIN = ("MH_01_easy", "V1_02_medium", "MH_03_medium", "V2_01_easy", "V1_03_difficult",
                "MH_05_difficult", "V2_02_medium", "MH_02_easy", "V1_01_easy")
 #: UZH-FPV indoor trajectories trained on, flown with ``body_frame="flu"``.
-UZH_TRAIN = ("indoor_forward_3", "indoor_45_2", "indoor_forward_9", "indoor_45_13")
-#: The UZH-FPV flights' rig pitch below forward, degrees (the 45-degree flights' camera is
-#: steeper; a forward racer's looks at the horizon and sees no floor target).
-UZH_PITCH_DEG = 30.0
+UZH_TRAIN = ("indoor_forward_3", "indoor_45_2", "indoor_45_13", "indoor_forward_7",
+             "indoor_forward_9", "indoor_45_14")
+#: The UZH-FPV flights' rig pitch below forward, degrees: the 45-degree flights' as recorded
+#: (their followed car is seen from steeply above), the forward racers' 30 (their real camera
+#: looks at the horizon and sees no floor target).
+UZH_PITCH_DEG = {"indoor_45": 45.0, "indoor_forward": 30.0}
 #: Seconds into a trajectory file where its flight starts (EuRoC's MAV is still on the
-#: ground before).
+#: ground before), or earlier where the file would end first.
 TRAJ_START_S = 20.0
 #: Moving targets placed in view of every flight.
 FOLLOW_TARGETS = 2
@@ -96,16 +105,20 @@ def flights(args) -> list[tuple[str, SimConfig]]:
     """``(name, SimConfig)`` of the training flights."""
     out = [(f"proc_{i:02d}", _sim(args.rate, args.duration, FLIGHT_SEED + i))
            for i in range(args.procedural)]
+    out += [(f"steep_{i:02d}", _sim(args.rate, args.duration, FLIGHT_SEED + 300 + i,
+                                    camera_pitch_deg=STEEP_PITCH_DEG))
+            for i in range(args.steep)]
     for i, stem in enumerate(EUROC_TRAIN[:args.euroc_flights]):
         out.append((stem, _sim(args.rate, args.duration, FLIGHT_SEED + 100 + i,
                                trajectory=str(trajectory_dir(DATA_ROOT, "euroc") / f"{stem}.txt"),
                                start=TRAJ_START_S)))
     for i, stem in enumerate(UZH_TRAIN[:args.uzh_flights]):
+        path = trajectory_dir(DATA_ROOT, "uzh_fpv") / f"{stem}.txt"
+        stamps = np.loadtxt(path, usecols=0, ndmin=1)
+        start = max(0.0, min(TRAJ_START_S, float(stamps[-1] - stamps[0]) - args.duration))
         out.append((stem, _sim(args.rate, args.duration, FLIGHT_SEED + 200 + i,
-                               trajectory=str(trajectory_dir(DATA_ROOT, "uzh_fpv") /
-                                              f"{stem}.txt"),
-                               start=TRAJ_START_S, body_frame="flu",
-                               camera_pitch_deg=UZH_PITCH_DEG)))
+                               trajectory=str(path), start=start, body_frame="flu",
+                               camera_pitch_deg=UZH_PITCH_DEG[stem.rsplit("_", 1)[0]])))
     return out
 
 
@@ -138,9 +151,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--procedural", type=int, default=8, help="procedural flights")
+    ap.add_argument("--steep", type=int, default=8,
+                    help=f"procedural flights with the rig pitched {STEEP_PITCH_DEG:g} degrees")
     ap.add_argument("--euroc-flights", type=int, default=6,
                     help=f"EuRoC trajectories, the first of {EUROC_TRAIN}")
-    ap.add_argument("--uzh-flights", type=int, default=2,
+    ap.add_argument("--uzh-flights", type=int, default=4,
                     help=f"UZH-FPV indoor trajectories, the first of {UZH_TRAIN}")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
     ap.add_argument("--rate", type=positive, default=2.0, help="frames per second rendered")

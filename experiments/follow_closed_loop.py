@@ -168,10 +168,10 @@ def main(argv=None) -> dict:
         if args.detector == "labels":
             detector, name = None, "labels"
         elif args.detector == "shipped":
-            detector, name = load_network_detector(None, run_cfg.detect.score_threshold), \
+            detector, name = load_network_detector(None, run_cfg.detect.detector_threshold()), \
                 "shipped"
         else:
-            detector = load_network_detector(args.detector, run_cfg.detect.score_threshold)
+            detector = load_network_detector(args.detector, run_cfg.detect.detector_threshold())
             name = str(args.detector)
         base = ClosedLoopConfig(duration=args.duration, resolution=args.resolution,
                                 camera_pitch_deg=args.camera_pitch, seed=args.seed, run=run_cfg)

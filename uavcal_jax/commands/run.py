@@ -87,7 +87,7 @@ def _detector(args, config):
     from uavcal_jax.pipeline.detectors import LabelDetector, load_network_detector
 
     if args.detector != LABELS:
-        return load_network_detector(args.detector, config.detect.score_threshold)
+        return load_network_detector(args.detector, config.detect.detector_threshold())
     from uavcal_jax.data.read import read_sequence
 
     sequence, _ = read_sequence(args.sequence)

@@ -64,6 +64,13 @@ class ImageDetections(NamedTuple):
     scores: np.ndarray
     classes: np.ndarray
 
+    def above(self, threshold: float) -> ImageDetections:
+        """The detections scoring at least ``threshold``."""
+        keep = np.asarray(self.scores) >= threshold
+        return ImageDetections(np.asarray(self.boxes, np.float64)[keep].reshape(-1, 4),
+                               np.asarray(self.scores, np.float64)[keep],
+                               np.asarray(self.classes, np.int64)[keep])
+
 
 def detect_letterboxed(predict_fn: Callable, images, ratios: Sequence[float],
                        pads: Sequence[tuple[float, float]], sizes: Sequence[tuple[int, int]]

@@ -381,14 +381,12 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
             # 2. detect, choose (first: the VIO's front end leaves the boxes out)
             c0 = time.perf_counter()
             if detector is None:
-                det = label_detections(boxes0[0], vis0[0], target_class,
-                                       config.min_visible_pixels)
+                det = masked = label_detections(boxes0[0], vis0[0], target_class,
+                                                config.min_visible_pixels)
             else:
                 found = detector([np.repeat(left[..., None], 3, axis=-1)], [j])[0]
-                keep = np.asarray(found.scores) >= run.detect.score_threshold
-                det = ImageDetections(np.asarray(found.boxes, np.float64)[keep].reshape(-1, 4),
-                                      np.asarray(found.scores, np.float64)[keep],
-                                      np.asarray(found.classes, np.int64)[keep])
+                masked = found.above(run.detect.detector_threshold())
+                det = found.above(run.detect.score_threshold)
             box, _ = chooser(det)
             ms["detect"][j] = 1e3 * (time.perf_counter() - c0)
 
@@ -396,7 +394,7 @@ def fly_closed_loop(config: ClosedLoopConfig, detector: Detector | None, detecto
             c0 = time.perf_counter()
             if vio is not None:
                 est = vio.process(int(t_imu[k_imu]), left, right,
-                                  det.boxes if run.detect.mask_vio else None)
+                                  masked.boxes if run.detect.mask_vio else None)
                 ok = est.has_pose and np.all(np.isfinite(est.position))
                 T_pose = _pose(est.rotation, est.position) if ok else None
             else:

@@ -149,12 +149,7 @@ def _detect_frames(sequence: Sequence, frames: list[int], detector: Detector, th
                 break
             t0 = time.perf_counter()
             image = cam0.load(k, "rgb") if detector.needs_images else None
-            found = detector([image], [int(cam0.t_ns[k])])[0]
-            keep = np.asarray(found.scores) >= threshold
-            board.publish(k, ImageDetections(
-                np.asarray(found.boxes, np.float64)[keep].reshape(-1, 4),
-                np.asarray(found.scores, np.float64)[keep],
-                np.asarray(found.classes, np.int64)[keep]))
+            board.publish(k, detector([image], [int(cam0.t_ns[k])])[0].above(threshold))
             ms.append(1e3 * (time.perf_counter() - t0))
             bar.update(1)
     finally:
@@ -166,14 +161,16 @@ def _detect_frames(sequence: Sequence, frames: list[int], detector: Detector, th
 def _vio_and_detect(sequence: Sequence, config: RunConfig, offset: np.ndarray,
                     detector: Detector, show: bool):
     """Steps 2 and 3 at once: the detector in a worker thread beside the VIO (whose front end
-    waits for each frame's boxes under ``detect.mask_vio``)."""
+    waits for each frame's boxes under ``detect.mask_vio``). The detections returned are those
+    scoring at least ``detect.score_threshold``; the mask took the lower
+    ``detect.mask_score_threshold`` too."""
     n_frames = len(sequence.camera("cam0"))
     frames = list(range(0, n_frames, config.detect.every))
     board = DetectionBoard(n_frames, config.detect.every)
     stop = threading.Event()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="detector") as pool:
         job = pool.submit(_detect_frames, sequence, frames, detector,
-                          config.detect.score_threshold, show, stop, board)
+                          config.detect.detector_threshold(), show, stop, board)
         try:
             vio = run_vio(sequence, config.vio, offset, show_progress=show,
                           exclude_boxes=board.boxes if config.detect.mask_vio else None)
@@ -181,6 +178,9 @@ def _vio_and_detect(sequence: Sequence, config: RunConfig, offset: np.ndarray,
             stop.set()
             raise
         detections, detect_ms = job.result()
+    # the mask's doubtful boxes are not targets
+    detections = [None if d is None else d.above(config.detect.score_threshold)
+                  for d in detections]
     return vio, detections, detect_ms, len(frames)
 
 
@@ -251,7 +251,7 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
     if "cam0" not in sequence.cameras or len(sequence.camera("cam0")) == 0:
         raise DataError("the recording has no left camera frames (cam0)", recording)
     if detector is None:
-        detector = load_network_detector(None, config.detect.score_threshold)
+        detector = load_network_detector(None, config.detect.detector_threshold())
     if config.detect.follow_class not in detector.class_names:
         raise DataError(f"detect.follow_class={config.detect.follow_class!r} is not a class "
                         f"of the detector (its classes: {', '.join(detector.class_names)})")
