@@ -37,6 +37,12 @@ def test_process_noise_is_the_continuous_white_noise_acceleration_matrix(x64):
     integral = q * simpson(vals, x=s[::100], axis=0)  # exact: the integrand is quadratic
     np.testing.assert_allclose(Q, integral, rtol=1e-10, atol=1e-15)
     np.testing.assert_allclose(np.asarray(F.transition(dt))[:3, 3:], dt * np.eye(3))
+    # per axis (a ground target's small vertical PSD): each axis its own block, no coupling
+    q_axes = F.FilterConfig(accel_psd=q, vertical_accel_psd=0.1).axis_psd
+    assert q_axes == (q, q, 0.1)
+    Q3 = np.asarray(F.white_noise_acceleration_q(dt, np.asarray(q_axes)))
+    scale = np.array([1.0, 1.0, 0.1 / q] * 2)
+    np.testing.assert_allclose(Q3, expected * np.sqrt(np.outer(scale, scale)), rtol=1e-12)
 
 
 def _simulate(rng, runs, n_frames, q, r_sigma, v_sigma):

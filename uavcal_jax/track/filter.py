@@ -8,7 +8,11 @@ acceleration" (CWNA) model; not the piecewise-constant "discrete white noise acc
 form of sec. 6.3.2)::
 
     F = [[I, dt I], [0, I]]
-    Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]
+    Q = [[dt^3/3 D, dt^2/2 D], [dt^2/2 D, dt D]],  D = diag(q_x, q_y, q_z)
+
+The world is gravity-aligned (z up), so a target on the ground gets a small vertical ``q_z``
+(``vertical_accel_psd``): its height then stays put instead of taking up the height errors of
+boxes cut by the image border as a climb.
 
 Measurement: the position, ``z = p + n``, ``n ~ N(0, R_k)`` with a per-frame ``R_k`` (from
 :mod:`uavcal_jax.track.locate`). A measurement whose squared Mahalanobis distance to the
@@ -66,10 +70,15 @@ class FilterConfig:
         accel_psd: ``q``, the power spectral density of the target's white-noise
             acceleration, m^2/s^3 per axis (1.0: a walking person or a slow car; the
             acceleration std over 1 s is about ``sqrt(q)`` m/s^2).
+        vertical_accel_psd: the world z axis's ``q`` instead (``None``: ``accel_psd``, the
+            same on every axis).
         gate_probability: the measurement gate keeps this much probability of a consistent
             measurement (chi-square, 3 degrees of freedom; 0.997 -> d^2 <= 14.16).
         lost_after: seconds without a used measurement before the target is lost.
         init_velocity_sigma: velocity standard deviation at (re-)initialisation, m/s.
+        vertical_velocity_sigma: the world z axis's instead (``None``:
+            ``init_velocity_sigma``); with a small ``vertical_accel_psd`` a climb taken up
+            from the first noisy heights would stay for long.
         reinit_after_gated: this many gated measurements in a row re-initialise the filter
             from the last of them (0: never).
         coast_after: seconds after the last used measurement during which the prediction
@@ -77,15 +86,21 @@ class FilterConfig:
     """
 
     accel_psd: float = 1.0
+    vertical_accel_psd: float | None = None
     gate_probability: float = 0.997
     lost_after: float = 2.0
     init_velocity_sigma: float = 2.0
+    vertical_velocity_sigma: float | None = None
     reinit_after_gated: int = 5
     coast_after: float = float("inf")
 
     def __post_init__(self):
         if self.accel_psd < 0.0:
             raise ValueError(f"accel_psd must be >= 0, got {self.accel_psd}")
+        for name in ("vertical_accel_psd", "vertical_velocity_sigma"):
+            value = getattr(self, name)
+            if value is not None and value < 0.0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
         if not 0.0 < self.gate_probability < 1.0:
             raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
         if self.lost_after <= 0.0:
@@ -94,6 +109,19 @@ class FilterConfig:
             raise ValueError(f"coast_after must be >= 0, got {self.coast_after}")
         if self.reinit_after_gated < 0:
             raise ValueError(f"reinit_after_gated must be >= 0, got {self.reinit_after_gated}")
+
+    @property
+    def axis_psd(self) -> tuple[float, float, float]:
+        """``(q_x, q_y, q_z)``, m^2/s^3: the world axes' acceleration PSDs."""
+        q_z = self.accel_psd if self.vertical_accel_psd is None else self.vertical_accel_psd
+        return (self.accel_psd, self.accel_psd, q_z)
+
+    @property
+    def axis_velocity_sigma(self) -> tuple[float, float, float]:
+        """The world axes' velocity standard deviations at (re-)initialisation, m/s."""
+        s_z = (self.init_velocity_sigma if self.vertical_velocity_sigma is None
+               else self.vertical_velocity_sigma)
+        return (self.init_velocity_sigma, self.init_velocity_sigma, s_z)
 
     @property
     def gate(self) -> float:
@@ -129,12 +157,13 @@ def transition(dt) -> jax.Array:
 
 
 def white_noise_acceleration_q(dt, q) -> jax.Array:
-    """(6, 6) process noise of continuous white-noise acceleration (PSD ``q``, m^2/s^3)
-    integrated over ``dt`` seconds: ``q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]``."""
+    """(6, 6) process noise of continuous white-noise acceleration integrated over ``dt``
+    seconds: ``[[dt^3/3 D, dt^2/2 D], [dt^2/2 D, dt D]]`` with ``D = diag(q)``; ``q`` the PSD
+    (m^2/s^3), a scalar (every axis) or (3,) per axis."""
     dt = jnp.asarray(dt)
-    eye = jnp.eye(3, dtype=dt.dtype)
-    return q * jnp.block([[dt ** 3 / 3.0 * eye, dt ** 2 / 2.0 * eye],
-                          [dt ** 2 / 2.0 * eye, dt * eye]])
+    D = jnp.diag(jnp.broadcast_to(jnp.asarray(q, dt.dtype), (3,)))
+    return jnp.block([[dt ** 3 / 3.0 * D, dt ** 2 / 2.0 * D],
+                      [dt ** 2 / 2.0 * D, dt * D]])
 
 
 class _Carry(NamedTuple):
@@ -161,7 +190,7 @@ def _step(config: FilterConfig, carry: _Carry, frame):
     dt_move = jnp.clip(jnp.minimum(t, t_stop) - carry.t, 0.0, dt)
     x_pred = transition(dt_move) @ carry.x
     F = transition(dt)
-    P_pred = F @ carry.P @ F.T + white_noise_acceleration_q(dt, config.accel_psd)
+    P_pred = F @ carry.P @ F.T + white_noise_acceleration_q(dt, jnp.asarray(config.axis_psd))
     lost_now = carry.active & (t - carry.t_used > config.lost_after)
     active = carry.active & ~lost_now
 
@@ -186,7 +215,7 @@ def _step(config: FilterConfig, carry: _Carry, frame):
     init = (~active & valid) | reinit
     x_init = jnp.concatenate([z, jnp.zeros(3, dtype)])
     P_init = jnp.zeros((6, 6), dtype).at[:3, :3].set(R).at[3:, 3:].set(
-        config.init_velocity_sigma ** 2 * jnp.eye(3, dtype=dtype))
+        jnp.diag(jnp.asarray(config.axis_velocity_sigma, dtype) ** 2))
 
     x = jnp.where(init, x_init, jnp.where(use, x_upd, jnp.where(active, x_pred, carry.x)))
     P = jnp.where(init, P_init, jnp.where(use, P_upd, jnp.where(active, P_pred, carry.P)))
