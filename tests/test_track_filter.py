@@ -182,3 +182,28 @@ def test_prediction_coasts_then_holds():
     assert x[held][0] == pytest.approx(x[last] + 2.0 * 0.5, abs=0.1)
     var = np.asarray(out.covariance)[:, 0, 0]
     assert np.all(np.diff(var[last:]) > 0)
+
+
+def test_a_ground_target_never_climbs_but_its_height_follows_the_measurements(x64):
+    """``vertical_accel_psd = vertical_velocity_sigma = 0`` with a height random walk: the
+    vertical velocity stays exactly zero, also while coasting unseen, and a step in the
+    measured height (a view whose height error differs) is followed, not flown off with."""
+    n = 60
+    times = np.arange(n) * DT
+    truth = np.stack([1.0 + 2.0 * times, -0.5 * times, np.zeros(n)], axis=1)  # on the floor
+    z = truth + 0.05 * np.random.default_rng(3).standard_normal((n, 3))
+    z[20:40, 2] += 0.4  # 20 frames whose height reads 0.4 m high
+    valid = np.arange(n) < 50  # unseen for the last 10 frames
+    R = np.broadcast_to(0.05 ** 2 * np.eye(3), (n, 3, 3))
+    config = F.FilterConfig(accel_psd=1.0, vertical_accel_psd=0.0, vertical_velocity_sigma=0.0,
+                            height_walk_psd=1.0, lost_after=5.0)
+    out = F.run_filter(times, z, R, valid, config)
+    vel, pos = np.asarray(out.velocity), np.asarray(out.position)
+    np.testing.assert_array_equal(vel[:, 2], 0.0)
+    assert abs(pos[39, 2] - 0.4) < 0.1  # followed the raised heights
+    assert abs(pos[49, 2]) < 0.1  # and came back down with them
+    np.testing.assert_allclose(pos[50:, 2], pos[49, 2])  # coasting keeps the height
+    np.testing.assert_allclose(vel[49, :2], [2.0, -0.5], atol=0.3)  # horizontal untouched
+    # no vertical acceleration: Q has nothing on the height or the vertical velocity
+    Q = np.asarray(F.white_noise_acceleration_q(DT, np.asarray(config.axis_psd)))
+    assert Q[2].tolist() == [0.0] * 6 and Q[:, 5].tolist() == [0.0] * 6

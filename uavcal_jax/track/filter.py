@@ -10,9 +10,13 @@ form of sec. 6.3.2)::
     F = [[I, dt I], [0, I]]
     Q = [[dt^3/3 D, dt^2/2 D], [dt^2/2 D, dt D]],  D = diag(q_x, q_y, q_z)
 
-The world is gravity-aligned (z up), so a target on the ground gets a small vertical ``q_z``
-(``vertical_accel_psd``): its height then stays put instead of taking up the height errors of
-boxes cut by the image border as a climb.
+The world is gravity-aligned (z up). A target on the ground does not climb: with
+``vertical_accel_psd = 0`` and ``vertical_velocity_sigma = 0`` its vertical velocity stays
+zero, and its height may instead wander as a random walk of PSD ``height_walk_psd`` (m^2/s,
+added to ``Q``'s height entry as ``height_walk_psd * dt``). The height still follows the
+measurements, whose height error changes with the view (a stiff height would turn it into a
+range error along the slanted line of sight), but height errors of boxes cut by the image
+border are no longer taken up as a climb that a coasting prediction flies off with.
 
 Measurement: the position, ``z = p + n``, ``n ~ N(0, R_k)`` with a per-frame ``R_k`` (from
 :mod:`uavcal_jax.track.locate`). A measurement whose squared Mahalanobis distance to the
@@ -79,6 +83,7 @@ class FilterConfig:
         vertical_velocity_sigma: the world z axis's instead (``None``:
             ``init_velocity_sigma``); with a small ``vertical_accel_psd`` a climb taken up
             from the first noisy heights would stay for long.
+        height_walk_psd: the PSD of a random walk of the height, m^2/s (module docstring).
         reinit_after_gated: this many gated measurements in a row re-initialise the filter
             from the last of them (0: never).
         coast_after: seconds after the last used measurement during which the prediction
@@ -91,13 +96,14 @@ class FilterConfig:
     lost_after: float = 2.0
     init_velocity_sigma: float = 2.0
     vertical_velocity_sigma: float | None = None
+    height_walk_psd: float = 0.0
     reinit_after_gated: int = 5
     coast_after: float = float("inf")
 
     def __post_init__(self):
         if self.accel_psd < 0.0:
             raise ValueError(f"accel_psd must be >= 0, got {self.accel_psd}")
-        for name in ("vertical_accel_psd", "vertical_velocity_sigma"):
+        for name in ("vertical_accel_psd", "vertical_velocity_sigma", "height_walk_psd"):
             value = getattr(self, name)
             if value is not None and value < 0.0:
                 raise ValueError(f"{name} must be >= 0, got {value}")
@@ -190,7 +196,8 @@ def _step(config: FilterConfig, carry: _Carry, frame):
     dt_move = jnp.clip(jnp.minimum(t, t_stop) - carry.t, 0.0, dt)
     x_pred = transition(dt_move) @ carry.x
     F = transition(dt)
-    P_pred = F @ carry.P @ F.T + white_noise_acceleration_q(dt, jnp.asarray(config.axis_psd))
+    P_pred = (F @ carry.P @ F.T + white_noise_acceleration_q(dt, jnp.asarray(config.axis_psd))
+              ).at[2, 2].add(config.height_walk_psd * dt)
     lost_now = carry.active & (t - carry.t_used > config.lost_after)
     active = carry.active & ~lost_now
 
