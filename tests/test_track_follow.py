@@ -211,9 +211,53 @@ def test_followed_chain_bridges_an_identity_break_and_not_another_target():
     # started from the later track, the chain runs backwards through the first
     later = (f_tracks - {first}).pop()
     np.testing.assert_array_equal(A.followed_detections(ids, boxes, classes, later), pick)
-    # stitching off: the chain is the chosen track only
-    alone = A.followed_detections(ids, boxes, classes, first, A.AssociateConfig(stitch_iou=1.0))
+    # stitching and re-acquiring off: the chain is the chosen track only
+    alone = A.followed_detections(ids, boxes, classes, first,
+                                  A.AssociateConfig(stitch_iou=1.0, reacquire=False))
     assert (alone[:12] >= 0).all() and (alone[12:] < 0).all()
+    # stitching off, re-acquiring on: F's new track is the first to appear after the break
+    # (P, seen all along, is another target)
+    again = A.followed_detections(ids, boxes, classes, first,
+                                  A.AssociateConfig(stitch_iou=1.0, reacquire=True))
+    np.testing.assert_array_equal(again, pick)
+
+
+def test_a_target_back_in_view_is_reacquired_if_it_could_have_got_there():
+    """F is followed for 10 frames, leaves the image for 10, and comes back elsewhere in the
+    image (no box overlaps); a car Q appears first, 2 frames before F: the chain skips Q
+    (the plausibility check rejects it) and re-acquires F. Backwards the same."""
+    boxes, classes, who = [], [], []
+    for k in range(40):
+        frame, names = [], []
+        if k < 10:
+            frame.append([100.0 + 10 * k, 100.0, 200.0 + 10 * k, 160.0]), names.append("F")
+        if k >= 20:
+            frame.append([500.0 - 5 * k, 300.0, 600.0 - 5 * k, 380.0]), names.append("F")
+        if 18 <= k < 30:
+            frame.append([600.0, 50.0, 700.0, 120.0]), names.append("Q")
+        boxes.append(np.array(frame).reshape(-1, 4))
+        classes.append(np.zeros(len(frame), np.int64))
+        who.append(names)
+    ids = A.assign_track_ids(boxes, classes)
+    asked = []
+
+    def plausible(k_end, i_end, k, i):
+        asked.append((who[k_end][i_end], who[k][i]))
+        return who[k][i] == "F"
+
+    first = int(ids[0][0])
+    config = A.AssociateConfig(reacquire=True)
+    pick = A.followed_detections(ids, boxes, classes, first, config, plausible)
+    for k, names in enumerate(who):
+        assert (pick[k] >= 0 and names[pick[k]] == "F") if "F" in names else pick[k] == -1
+    assert asked == [("F", "Q"), ("F", "F")]
+    later = int(ids[25][who[25].index("F")])
+    np.testing.assert_array_equal(
+        A.followed_detections(ids, boxes, classes, later, config, plausible), pick)
+    # no check: the first car to appear is taken; off (the default): F's first track only
+    blind = A.followed_detections(ids, boxes, classes, first, config)
+    assert who[18][blind[18]] == "Q"
+    assert (A.followed_detections(ids, boxes, classes, first)[10:] == -1).all()
 
 
 def test_a_part_boxed_beside_its_target_is_dropped_and_other_targets_kept():

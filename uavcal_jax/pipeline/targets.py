@@ -8,8 +8,10 @@ and the detector have run over a recording:
    (:func:`uavcal_jax.track.associate.assign_track_ids`) and the longest track of the class
    to follow is the target (:func:`~uavcal_jax.track.associate.longest_track`), its length
    counted in boxes inside the image (a box cut by the border cannot be located), continued
-   through identity breaks by the tracks that overlap its ends
-   (:func:`~uavcal_jax.track.associate.followed_detections`);
+   through identity breaks by the tracks that overlap its ends, and (with
+   ``associate.reacquire``) after the target was out of view by the next track of its class
+   to appear whose first box is located where the target could have driven to
+   (:func:`_could_reach`; :func:`~uavcal_jax.track.associate.followed_detections`);
 2. each of its boxes is located (:class:`Localizer`): from the depth image (``depth0``) when
    the recording has one, else from the stereo pair's disparity (``cam1``), else not at all,
    with the reason; a box cut by the image border, or a frame without a VIO pose, is not
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import time
 
 import jax
@@ -44,6 +47,7 @@ from uavcal_jax.geometry.camera import PinholeRadtan, from_calibration
 from uavcal_jax.pipeline.run_config import RunConfig
 from uavcal_jax.track import (
     REASONS,
+    AssociateConfig,
     FilterOutput,
     assign_track_ids,
     contained_duplicates,
@@ -269,6 +273,23 @@ def centre_on_box(times_s: np.ndarray, raw_frames: np.ndarray, front: np.ndarray
     return at_heading(np.concatenate([[np.nan], heading[:-1]])[raw_frames])  # causal
 
 
+def _could_reach(ran, boxes, poses, localizer: Localizer, t_ns, config: AssociateConfig,
+                 k_end: int, i_end: int, k: int, i: int) -> bool:
+    """Could the target last seen as box ``i_end`` of detected frame ``k_end`` be box ``i`` of
+    detected frame ``k``: both located within ``reacquire_radius + reacquire_speed * gap``?
+    (Yes where either cannot be located: nothing says otherwise.)"""
+    points = []
+    for kk, ii in ((k_end, i_end), (k, i)):
+        frame = ran[kk]
+        located = localizer.locate(frame, boxes[kk][ii], poses[frame])
+        if not located.located:
+            return True
+        points.append(np.asarray(located.point, np.float64))
+    gap_s = abs(int(t_ns[ran[k]]) - int(t_ns[ran[k_end]])) * 1e-9
+    reach = config.reacquire_radius + config.reacquire_speed * gap_s
+    return bool(np.linalg.norm(points[1] - points[0]) <= reach)
+
+
 def track_target(sequence: Sequence, detections: list[ImageDetections | None],
                  class_names, poses: list[np.ndarray | None], config: RunConfig,
                  localizer: Localizer) -> TargetResult:
@@ -309,7 +330,10 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     raw_frames, points, covs, views, seen_boxes, locate_ms = [], [], [], [], [], []
     not_located: collections.Counter = collections.Counter()
     if chosen is not None:
-        pick = followed_detections(ids_ran, boxes_ran, classes_ran, chosen, config.associate)
+        plausible = functools.partial(_could_reach, ran, boxes_ran, poses, localizer,
+                                      cam0.t_ns, config.associate)
+        pick = followed_detections(ids_ran, boxes_ran, classes_ran, chosen, config.associate,
+                                   plausible)
         for k, i, index in zip(ran, pick, kept, strict=True):
             if i < 0:
                 continue
