@@ -19,11 +19,12 @@ track of its class to appear (the longest of those starting first; backwards, of
 last), if a caller's plausibility check agrees (``uavcal run`` locates both boxes and asks that
 the target could have driven between them). It is off by default: on a simulated V2_03
 flight the car, hidden 1 s behind a person, came back as a new track that the chain otherwise
-misses for the flight's last 6.4 s (filtered RMSE 0.97 m without, 0.69 m with), but the
-segments it adds are the hard ones (a car cut by the border, seen end-on, just re-found),
-and over nine simulated flights it raised the filtered median on three (V2_03 0.44 to 0.53 m,
-a forward UZH-FPV flight 0.98 to 1.18 m, V2_02 0.26 to 0.31 m) and one RMSE (indoor_45_12
-0.37 to 0.77 m), and changed none of the others.
+misses for the flight's last 6.4 s (filtered RMSE 0.66 m without, 0.54 m with), but the
+segments it adds are the hard ones (a car cut by the border, seen end-on, just re-found):
+over nine simulated flights it raised the filtered median on three (V2_03 0.35 to 0.38 m,
+V2_02 0.28 to 0.31 m, a forward UZH-FPV flight 0.98 to 1.15 m) and the RMSE on three
+(V2_02 0.79 to 0.83 m, indoor_45_12 0.37 to 0.77 m, the forward flight 1.68 to 2.00 m), and
+changed none of the others.
 
 A target seen from close by and steeply above can come out of the detector as a whole box plus
 a box of a part of it (a car's bonnet), which NMS keeps: their IoU is small. Such a part would
