@@ -66,12 +66,12 @@ class NetworkDetector:
                              batch_size=len(images))
 
 
-def load_network_detector(run: str | Path | None = None, score_threshold: float = 0.25
-                          ) -> NetworkDetector:
+def load_network_detector(run: str | Path | None, score_threshold: float) -> NetworkDetector:
     """The detector of a ``uavcal detect train`` run folder ``run`` (its best weights), or
     the shipped one (:func:`uavcal_jax.detect.default_weights.default_detector_run`) when
-    ``run`` is ``None``; detections
-    below ``score_threshold`` are dropped (the serving NMS settings otherwise).
+    ``run`` is ``None``; detections below ``score_threshold`` are dropped (the serving NMS
+    settings otherwise; ``uavcal run`` passes
+    :meth:`~uavcal_jax.pipeline.run_config.DetectStageConfig.detector_threshold`).
 
     Raises:
         DataError: the folder is missing or is not a training run with a best checkpoint (the

@@ -119,15 +119,12 @@ class FilterConfig:
     @property
     def axis_psd(self) -> tuple[float, float, float]:
         """``(q_x, q_y, q_z)``, m^2/s^3: the world axes' acceleration PSDs."""
-        q_z = self.accel_psd if self.vertical_accel_psd is None else self.vertical_accel_psd
-        return (self.accel_psd, self.accel_psd, q_z)
+        return _per_axis(self.accel_psd, self.vertical_accel_psd)
 
     @property
     def axis_velocity_sigma(self) -> tuple[float, float, float]:
         """The world axes' velocity standard deviations at (re-)initialisation, m/s."""
-        s_z = (self.init_velocity_sigma if self.vertical_velocity_sigma is None
-               else self.vertical_velocity_sigma)
-        return (self.init_velocity_sigma, self.init_velocity_sigma, s_z)
+        return _per_axis(self.init_velocity_sigma, self.vertical_velocity_sigma)
 
     @property
     def gate(self) -> float:
@@ -153,6 +150,11 @@ class FilterOutput(NamedTuple):
     status: jax.Array
     gated: jax.Array
     nis: jax.Array
+
+
+def _per_axis(horizontal: float, vertical: float | None) -> tuple[float, float, float]:
+    """``(x, y, z)``: ``horizontal`` on x and y, ``vertical`` on z (``None``: ``horizontal``)."""
+    return (horizontal, horizontal, horizontal if vertical is None else vertical)
 
 
 def transition(dt) -> jax.Array:
