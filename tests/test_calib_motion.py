@@ -14,7 +14,9 @@ from scipy.spatial.transform import Rotation
 
 from uavcal_jax.calib.config import CalibConfig, ModelConfig
 from uavcal_jax.calib.data import Windows, gather, load_windows
+from uavcal_jax.calib.inject import imu_statistics
 from uavcal_jax.calib.model import Calibrator, rotation_residuals
+from uavcal_jax.calib.mounting import isotropic_statistics, random_mountings, remount
 from uavcal_jax.calib.predict import predict_sequence
 from uavcal_jax.calib.train import create_train_state, eval_step, train_step
 from uavcal_jax.config import apply_overrides
@@ -321,3 +323,64 @@ def test_mounting_angle_is_zero_as_trained_and_a_quarter_turn_for_another_mounti
     assert 80.0 < mounting_angle_deg(turned, trained) < 100.0
     assert MOUNTING_TOLERANCE_DEG < 80.0
     np.testing.assert_allclose(mounting_angle_deg(-accel, trained), 180.0, atol=5.0)
+
+
+# ----------------------------------------------------------------------------- any mounting
+
+
+def test_remounted_windows_read_every_vector_in_the_turned_imu_frame(parallel, state):
+    """``train.mounting=random``: a window read through a mounting ``R`` has its rotation
+    residuals turned by ``R`` (``R^T r``), and the untrained ``rotation_ls`` model's gyro
+    estimate with them."""
+    _, batch = parallel
+    R = np.asarray(random_mountings(jax.random.key(3), batch["imu"].shape[0]))
+    np.testing.assert_allclose(np.swapaxes(R, -1, -2) @ R, np.broadcast_to(np.eye(3), R.shape),
+                               atol=1e-6)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-6)
+    turned = remount(batch, R)
+    r, _ = residuals(batch["gyro_seq"], batch["dt_seq"], batch["rot_cam"], batch["rot_mask"])
+    r_t, _ = residuals(turned["gyro_seq"], turned["dt_seq"], turned["rot_cam"],
+                       turned["rot_mask"])
+    np.testing.assert_allclose(np.asarray(r_t), np.einsum("bti,bij->btj", np.asarray(r), R),
+                               atol=1e-5)
+    for b in range(R.shape[0]):  # the IMU samples, both sensors
+        for c in (0, 3):
+            np.testing.assert_allclose(np.asarray(turned["imu"])[b, :, c:c + 3],
+                                       batch["imu"][b, :, c:c + 3] @ R[b], atol=1e-5)
+    offset = np.tile(np.float32([0.02, -0.01, 0.03, 0, 0, 0]), (3, 1))
+    pred = np.asarray(eval_step(state, {**batch, "offset": offset})["pred"])[:, :3]
+    offset_t = np.concatenate([np.einsum("bi,bij->bj", offset[:, :3], R), offset[:, 3:]], 1)
+    pred_t = np.asarray(eval_step(state, {**turned, "offset": offset_t})["pred"])[:, :3]
+    np.testing.assert_allclose(pred_t, np.einsum("bi,bij->bj", pred, R), atol=1e-4)
+
+
+def test_isotropic_statistics_are_those_of_the_imu_over_random_mountings():
+    rng = np.random.default_rng(0)
+    samples = np.concatenate([rng.normal([0.1, -0.2, 0.05], [0.3, 0.2, 0.5], (4000, 3)),
+                              rng.normal([9.5, 0.3, -2.0], [0.4, 0.3, 0.6], (4000, 3))], 1)
+    stats = isotropic_statistics(imu_statistics(samples))
+    R = np.asarray(random_mountings(jax.random.key(0), 4000))
+    turned = np.concatenate([np.einsum("ni,nij->nj", samples[:, c:c + 3], R)
+                             for c in (0, 3)], 1)
+    np.testing.assert_allclose(stats.mean, 0.0)
+    np.testing.assert_allclose(stats.std, np.sqrt(np.mean(turned ** 2, axis=0)), rtol=0.05)
+    # exactly: E[(R^T v)_i^2] = |v|^2 / 3 for a uniform R
+    accel_rms = np.sqrt(np.mean(np.sum(samples[:, 3:] ** 2, axis=1)) / 3)
+    np.testing.assert_allclose(stats.std[3:], accel_rms, rtol=1e-4)
+
+
+def test_random_mounting_trains_on_turned_windows_and_refuses_the_paper_protocol(parallel):
+    _, batch = parallel
+    config = apply_overrides(CONFIG, ["train.mounting=random"])
+    s = create_train_state(config, jax.random.key(0), batch)
+    np.testing.assert_array_equal(np.asarray(s.imu_stats.mean), 0.0)
+    fixed = create_train_state(CONFIG, jax.random.key(0), batch)
+    key = jax.random.key(7)
+    _, m = train_step(s, batch, key)
+    _, m_fixed = train_step(fixed, batch, key)
+    assert np.isfinite(float(m["loss"]))
+    assert float(m["offset_rmse"]) != float(m_fixed["offset_rmse"])
+    with pytest.raises(ValueError, match="paper"):
+        apply_overrides(CalibConfig(), ["train.mounting=random"])
+    with pytest.raises(ValueError, match="mounting"):
+        apply_overrides(CalibConfig(), ["train.mounting=sideways"])

@@ -36,6 +36,7 @@ __all__ = [
     "FRAME_TOKENS",
     "LOSS_UNITS",
     "MONITORS",
+    "MOUNTINGS",
     "PROTOCOLS",
     "RUN_EXTRAS",
     "SIGN_TERMS",
@@ -63,6 +64,9 @@ LOSS_UNITS = ("si", "standardized")
 PROTOCOLS = ("paper", "symmetric", "physical")
 #: Early-stopping criteria (``loop.monitor``).
 MONITORS = ("train", "val")
+#: IMU mountings of the training windows (``train.mounting``): the recorded one, or a random
+#: one per window (:mod:`uavcal_jax.calib.mounting`).
+MOUNTINGS = ("fixed", "random")
 #: Validation schemes (``loop.validation``).
 VALIDATIONS = ("split", "loo", "kfold")
 #: Entries of a run's ``config.json`` beside the settings: derived from the windows
@@ -323,6 +327,12 @@ class TrainConfig:
         seeds: ``K`` independently initialised models trained in one vmapped step.
         freeze_key_bias: zero the attention key biases' gradients (exactly zero in exact
             arithmetic; see :func:`uavcal_jax.calib.train.make_optimizer`).
+        mounting: ``"fixed"`` (the recordings' own IMU mounting) or ``"random"``: every
+            training window's IMU turned by its own uniformly random rotation, the frames
+            kept, and the IMU standardised with statistics that hold for any mounting
+            (:mod:`uavcal_jax.calib.mounting`): a model that does not depend on how the IMU
+            sits in the airframe. Not with the paper protocol (its offsets are drawn around
+            the recorded mounting's mean).
     """
 
     batch_size: int = 16
@@ -336,8 +346,11 @@ class TrainConfig:
     seed: int = 0
     seeds: int = 1
     freeze_key_bias: bool = True
+    mounting: str = "fixed"
 
     def __post_init__(self) -> None:
+        if self.mounting not in MOUNTINGS:
+            raise ValueError(f"mounting must be one of {MOUNTINGS}, got {self.mounting!r}")
         if self.batch_size < 1 or self.epochs < 1 or self.patience < 1 or self.seeds < 1:
             raise ValueError("batch_size, epochs, patience and seeds must be >= 1")
         if self.learning_rate <= 0 or self.weight_decay < 0:
@@ -393,6 +406,16 @@ class CalibConfig:
     injection: InjectionConfig = field(default_factory=InjectionConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
+    def __post_init__(self) -> None:
+        check_sections(self.injection, self.train)
+
+
+def check_sections(injection: InjectionConfig, train: TrainConfig) -> None:
+    """Refuse sections that do not combine: random mountings under the paper protocol."""
+    if train.mounting == "random" and injection.protocol == "paper":
+        raise ValueError("train.mounting=random does not combine with injection.protocol="
+                         "paper (its offsets are drawn around the recorded mounting's mean)")
+
 
 @dataclass(frozen=True)
 class CalibRunConfig:
@@ -406,6 +429,9 @@ class CalibRunConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
     window: WindowConfig = field(default_factory=WindowConfig)
+
+    def __post_init__(self) -> None:
+        check_sections(self.injection, self.train)
 
     @property
     def calib(self) -> CalibConfig:

@@ -219,7 +219,9 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     shift = None if inject_offset is None else np.asarray(inject_offset, np.float64)[pick]
     prediction = predict_sequence(state, part.windows, seeds, inject_offset=shift)
     train_mean = np.asarray(jax.device_get(first_seed(state, seeds).imu_stats.mean))
-    angle = (None if train_mean.shape[-1] != 6 or sequence.imu is None else
+    # a model trained with random mountings has no training mounting to compare with
+    angle = (None if train_mean.shape[-1] != 6 or sequence.imu is None
+             or run.train.mounting == "random" else
              mounting_angle_deg(sequence.imu.accel, train_mean[3:]))
     info = {
         "run": str(run_dir), "kind": kind, "seeds": seeds, "sensor": sensor,

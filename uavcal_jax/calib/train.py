@@ -10,9 +10,11 @@ label the sensor's own ``bias (B, C)``, which the label adds to the offset. With
 every sample of ``gyro_seq`` as to ``imu`` (:func:`_motion`).
 
 - :func:`train_step` ``(state, batch, key) -> (state, metrics)``: splits ``key`` into an
-  offset key and a dropout key, draws a new offset per window by the configured protocol
-  (:func:`uavcal_jax.calib.inject.training_offsets`, from the training statistics held in
-  the state), injects it, and takes one AdamW step on the eq. 18 loss.
+  offset key and a dropout key, under ``train.mounting="random"`` turns each window's IMU
+  by a random mounting (:mod:`uavcal_jax.calib.mounting`), draws a new offset per window by
+  the configured protocol (:func:`uavcal_jax.calib.inject.training_offsets`, from the
+  training statistics held in the state), injects it, and takes one AdamW step on the eq. 18
+  loss.
 - :func:`eval_step` ``(state, batch) -> metrics``: injects ``batch["offset"]``, predicts in
   deterministic mode, returns the loss terms, the metric sums of
   :func:`uavcal_jax.calib.metrics.metric_sums` (add them over batches) and ``pred`` (and, for
@@ -51,6 +53,7 @@ from uavcal_jax.calib.inject import (
 from uavcal_jax.calib.loss import calibration_loss, gaussian_nll
 from uavcal_jax.calib.metrics import metric_sums
 from uavcal_jax.calib.model import MOTION_KEYS, NORMALIZATION, Calibrator, split_prediction
+from uavcal_jax.calib.mounting import isotropic_statistics, random_mountings, remount
 
 __all__ = [
     "CalibState",
@@ -172,10 +175,16 @@ def _first_window(batch: dict) -> dict:
     return {k: np.asarray(v)[:1] for k, v in batch.items()}
 
 
-def _stats(sample_batch: dict, imu_stats: ImuStats | None) -> ImuStats:
-    if imu_stats is not None:
-        return imu_stats
-    return imu_statistics(np.asarray(sample_batch["imu"]), np.asarray(sample_batch["mask"]))
+def _stats(config: CalibConfig, sample_batch: dict, imu_stats: ImuStats | None) -> ImuStats:
+    """The state's training statistics: ``imu_stats`` or ``sample_batch``'s, made
+    mounting-free under ``train.mounting="random"``
+    (:func:`~uavcal_jax.calib.mounting.isotropic_statistics`)."""
+    if imu_stats is None:
+        imu_stats = imu_statistics(np.asarray(sample_batch["imu"]),
+                                   np.asarray(sample_batch["mask"]))
+    if config.train.mounting == "random":
+        return isotropic_statistics(imu_stats)
+    return imu_stats
 
 
 def create_train_state(config: CalibConfig, key: jax.Array, sample_batch: dict,
@@ -183,8 +192,8 @@ def create_train_state(config: CalibConfig, key: jax.Array, sample_batch: dict,
     """A freshly initialised state. ``sample_batch`` fixes the shapes (its first window is
     used: frame size, frames per window when ``max_frames`` is None); ``imu_stats`` are the
     training set's (:func:`uavcal_jax.calib.inject.imu_statistics`), by default those of
-    ``sample_batch``'s clean IMU."""
-    stats = _stats(sample_batch, imu_stats)
+    ``sample_batch``'s clean IMU (made mounting-free under ``train.mounting="random"``)."""
+    stats = _stats(config, sample_batch, imu_stats)
     return _init_one(config, key, _first_window(sample_batch), stats)
 
 
@@ -194,7 +203,7 @@ def create_train_states(config: CalibConfig, keys: jax.Array, sample_batch: dict
     ``create_train_state(config, keys[k], ...)``. The inits run one by one through the same
     compiled function (an init runs once per run; a vmapped one would cost its own
     compile), the steps then run vmapped."""
-    stats = _stats(sample_batch, imu_stats)
+    stats = _stats(config, sample_batch, imu_stats)
     first = _first_window(sample_batch)
     states = [_init_one(config, k, first, stats) for k in keys]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *states)
@@ -246,9 +255,12 @@ def _loss(state: CalibState, pred, log_sigma, target, weight):
 
 def _train_step(state: CalibState, batch: dict, key: jax.Array):
     config = state.config
+    k_offset, k_dropout = jax.random.split(key)
+    if config.train.mounting == "random":  # its own stream: the fixed mounting's draws stay
+        k_mount = jax.random.fold_in(key, 1)
+        batch = remount(batch, random_mountings(k_mount, batch["imu"].shape[0]))
     frames, clean, mask = _inputs(config, batch)
     weight = _weight(batch, clean.shape[0])
-    k_offset, k_dropout = jax.random.split(key)
     offsets = training_offsets(k_offset, config.injection, state.imu_stats, clean.shape[0])
     imu = inject(clean, offsets, mask)
     motion = _motion(config, batch, offsets)
