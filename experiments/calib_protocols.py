@@ -22,6 +22,8 @@ paper's convention) and drawn by the protocol (:func:`uavcal_jax.calib.loop.eval
   beside each recording) and a head that starts at their gyro least squares, on the
   accelerometer at the mean offset (physical protocol) or the window mean (paper protocol,
   ``model.closed_form=rotation_window_mean``);
+- ``motion_tilt``: ``motion_tokens`` with the auxiliary tilt head (``model.tilt_head``:
+  gravity's direction in the IMU frame per frame, learned from the ground truth);
 - ``mean_offset``: the mean of the protocol's training offsets, for every window;
 - ``window_mean``: each window's mean IMU sample minus the training set's mean (no learning;
   right where the window's motion averages out and gravity's projection matches the training
@@ -154,8 +156,11 @@ VARIANTS = {
                      "model.correction_scale=0.05"),
         "paper": ("model.motion_tokens=true", "model.closed_form=rotation_window_mean")},
 }
+# the same with the auxiliary tilt head (gravity in the IMU frame per frame, issue 20)
+VARIANTS["motion_tilt"] = {protocol: settings + ("model.tilt_head=true",)
+                           for protocol, settings in VARIANTS["motion_tokens"].items()}
 #: The variants whose windows need the camera's relative rotations (``window.rotations``).
-VISUAL_VARIANTS = ("motion_tokens",)
+VISUAL_VARIANTS = ("motion_tokens", "motion_tilt")
 #: The estimators that need no ground truth and run on whole held-out recordings
 #: (``uavcal calib predict --method``): table key -> registered method.
 BLIND_METHODS = {"vio_bias": "vio-bias", "visual_ls": "visual-ls", "self_calib": "self-calib"}
@@ -164,6 +169,7 @@ METHODS = {
     "imu_only": "transformer, IMU only",
     "closed_form": "transformer on the window mean (closed-form head)",
     "motion_tokens": "motion-token transformer (closed-form head)",
+    "motion_tilt": "motion-token transformer with the tilt head (closed-form head)",
     "mean_offset": "mean-offset baseline",
     "window_mean": "window-mean baseline",
     "vio_bias": "VIO bias states (no ground truth)",
@@ -185,6 +191,7 @@ FIGURE2_STYLES = {"transformer": dict(color="C0", marker=".", ls="-", lw=1, ms=3
                   "imu_only": dict(color="C1", marker=".", ls="-", lw=1, ms=3),
                   "closed_form": dict(color="C3", marker=".", ls="-", lw=1, ms=3),
                   "motion_tokens": dict(color="C4", marker=".", ls="-", lw=1, ms=3),
+                  "motion_tilt": dict(color="C5", marker=".", ls="-", lw=1, ms=3),
                   "least_squares": dict(color="C2", ls="-", lw=1, ms=3),
                   "least_squares_oracle": dict(color="C2", ls=":", lw=1, ms=3),
                   "mean_offset": dict(color="0.5", ls="-.", lw=1, ms=3)}
@@ -566,7 +573,7 @@ def _paired_lines(trials: dict) -> list[str]:
     diffs: dict = {}
     for (name, protocol, _), t in trials.items():
         base = t["methods"].get("window_mean")
-        for variant in ("closed_form", "motion_tokens"):
+        for variant in ("closed_form", "motion_tokens", "motion_tilt"):
             if base is not None and variant in t["methods"]:
                 diffs.setdefault((name, protocol, variant), []).append(
                     t["methods"][variant]["offset_rmse"] - base["offset_rmse"])

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from uavcal_jax.calib.config import CalibConfig, ModelConfig
 from uavcal_jax.calib.data import Windows, gather, load_windows
 from uavcal_jax.calib.inject import imu_statistics
+from uavcal_jax.calib.loss import tilt_loss
 from uavcal_jax.calib.model import Calibrator, rotation_residuals
 from uavcal_jax.calib.mounting import isotropic_statistics, random_mountings, remount
 from uavcal_jax.calib.predict import predict_sequence
@@ -384,3 +385,62 @@ def test_random_mounting_trains_on_turned_windows_and_refuses_the_paper_protocol
         apply_overrides(CalibConfig(), ["train.mounting=random"])
     with pytest.raises(ValueError, match="mounting"):
         apply_overrides(CalibConfig(), ["train.mounting=sideways"])
+
+
+TILT = apply_overrides(CONFIG, ["model.tilt_head=true"])
+
+
+def test_frame_up_is_the_ground_truth_up_in_the_body_frame(turn):
+    _, ws = turn
+    t = (ws.frame_t_ns - T0) * 1e-9
+    inside = t >= 0.12
+    up = truth(t[inside], 0.7).inv().apply([0.0, 0.0, 1.0])  # R^T e_z
+    np.testing.assert_allclose(ws.frame_up[inside], up, atol=1e-6)
+    np.testing.assert_array_equal(ws.frame_up[~inside], 0.0)
+    labels = ws.up(np.arange(len(ws)))
+    assert labels.shape == (len(ws), ws.frames_per_window, 3)
+    np.testing.assert_array_equal(labels[~ws.frame_mask], 0.0)  # the dropped frame's slot
+    norms = np.linalg.norm(labels[ws.frame_mask], axis=-1)
+    assert set(np.round(norms, 5)) <= {0.0, 1.0}
+
+
+def test_tilt_loss_is_the_squared_distance_and_the_angle_over_labelled_frames():
+    up = np.zeros((1, 3, 3), np.float32)
+    up[0, 0] = [0, 0, 1]
+    up[0, 1] = [1, 0, 0]  # frame 2: no ground truth (zero)
+    pred = np.float32([[[0, 2, 0], [1, 0, 0], [5, 5, 5]]])
+    loss, angle = tilt_loss(pred, up, np.ones((1, 3), bool))
+    np.testing.assert_allclose(float(loss), (5.0 + 0.0) / 2, rtol=1e-6)
+    np.testing.assert_allclose(float(angle), 45.0, rtol=1e-5)
+
+
+def test_tilt_head_learns_gravity_without_changing_the_untrained_offsets(parallel):
+    parts, batch = parallel
+    tilt_batch = gather(parts, np.arange(batch["imu"].shape[0]), TILT.model, "gyro")
+    np.testing.assert_allclose(np.linalg.norm(tilt_batch["up"], axis=-1)[tilt_batch["mask"]],
+                               1.0, atol=1e-5)
+    plain = create_train_state(CONFIG, jax.random.key(0), batch)
+    state = create_train_state(TILT, jax.random.key(0), tilt_batch)
+    offset = np.tile(np.float32([0.02, -0.01, 0.03, 0.1, 0, 0]), (3, 1))
+    np.testing.assert_allclose(
+        np.asarray(eval_step(state, {**tilt_batch, "offset": offset})["pred"]),
+        np.asarray(eval_step(plain, {**batch, "offset": offset})["pred"]), atol=1e-6)
+    key = jax.random.key(7)
+    tilts = []
+    for _ in range(40):
+        state, m = train_step(state, tilt_batch, key)
+        tilts.append(float(m["tilt"]))
+    assert tilts[-1] < 0.5 * tilts[0], tilts
+    assert np.isfinite(float(m["tilt_deg"]))
+    # a remounted window's label is read in the turned IMU frame too
+    R = np.asarray(random_mountings(jax.random.key(3), 3))
+    turned = remount(tilt_batch, R)
+    np.testing.assert_allclose(np.asarray(turned["up"]),
+                               np.einsum("bti,bij->btj", tilt_batch["up"], R), atol=1e-6)
+
+
+def test_tilt_head_needs_ground_truth(turn):
+    _, ws = turn
+    blind = dataclasses.replace(ws, frame_up=None)
+    with pytest.raises(DataError, match="ground truth"):
+        gather([Windows(blind, np.arange(len(ws)), "turn")], np.arange(1), TILT.model, "gyro")

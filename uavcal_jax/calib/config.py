@@ -161,6 +161,14 @@ class ModelConfig:
             offsets' gradient stopped, so the estimate learns as without it (the same
             parameters step for step, to rounding; early stopping's validation loss holds
             the NLL too, so the epoch kept may differ); needs ``standardize``.
+        tilt_head: an auxiliary head for tilt (issue 20): a linear map of each frame's row
+            of the fusion encoder's output (eq. 10) to ``up (3,)``, the direction of
+            gravity's reaction in the IMU frame at that frame, trained against the ground
+            truth's orientation (``LossConfig.w_tilt``). The accelerometer's window mean
+            holds gravity's projection plus the offset; the head makes the shared features
+            learn where gravity lies, so that the offset head can take it out. It is sown
+            as the intermediate ``tilt`` ``(B, n, 3)``; the model's output and inference
+            are unchanged. Training needs recordings with ground truth.
     """
 
     d_model: int = 256
@@ -184,6 +192,7 @@ class ModelConfig:
     motion_tokens: bool = False
     correction_scale: float = 1.0
     variance: bool = False
+    tilt_head: bool = False
 
     def __post_init__(self) -> None:
         if self.d_model <= 0 or self.heads <= 0 or self.d_model % self.heads:
@@ -239,6 +248,10 @@ class LossConfig:
             protocol's offset standard deviation (see :mod:`uavcal_jax.calib.loss`).
         w_nll: weight of the Gaussian negative log-likelihood that trains a model's
             uncertainty (``ModelConfig.variance``; unused without it).
+        w_tilt: weight of the tilt head's loss, the mean squared difference between the
+            predicted and the true unit up vector over real frames
+            (:func:`~uavcal_jax.calib.loss.tilt_loss`; ``ModelConfig.tilt_head``, unused
+            without it).
     """
 
     sign_term: str = "sign"
@@ -248,6 +261,7 @@ class LossConfig:
     w_magnitude: float = 1.0
     units: str = "si"
     w_nll: float = 1.0
+    w_tilt: float = 1.0
 
     def __post_init__(self) -> None:
         if self.sign_term not in SIGN_TERMS:
@@ -258,6 +272,8 @@ class LossConfig:
             raise ValueError(f"tau must be positive, got {self.tau}")
         if self.w_nll < 0:
             raise ValueError(f"w_nll must be >= 0, got {self.w_nll}")
+        if self.w_tilt < 0:
+            raise ValueError(f"w_tilt must be >= 0, got {self.w_tilt}")
 
 
 @dataclass(frozen=True)

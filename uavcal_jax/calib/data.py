@@ -126,7 +126,7 @@ def _locate(parts: list[Windows]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def gather(parts: list[Windows], flat: np.ndarray, model: ModelConfig, sensor: str,
-           batch_size: int | None = None, label: str = "injected") -> dict:
+           batch_size: int | None = None, label: str = "injected", tilt: bool = True) -> dict:
     """Model inputs of windows ``flat`` (indices into the concatenation of ``parts``), with
     ``weight (B,)``: 1 for real windows, 0 for the copies of the first one that pad the batch
     to ``batch_size``. Under the ``total`` label (``InjectionConfig.target``) also ``bias
@@ -134,7 +134,9 @@ def gather(parts: list[Windows], flat: np.ndarray, model: ModelConfig, sensor: s
     injected offset (:func:`label_channels` of ``WindowSet.sensor_bias``). With
     ``model.motion_tokens`` also the interval inputs ``gyro_seq``, ``dt_seq``, ``rot_cam``,
     ``rot_mask`` (:meth:`~uavcal_jax.data.windows.WindowSet.motion`; ``S`` the largest
-    :attr:`~uavcal_jax.data.windows.WindowSet.interval_cap` of ``parts``)."""
+    :attr:`~uavcal_jax.data.windows.WindowSet.interval_cap` of ``parts``). With
+    ``model.tilt_head`` and ``tilt`` also the tilt label ``up (B, T, 3)``
+    (:meth:`~uavcal_jax.data.windows.WindowSet.up`; ``tilt=False`` for inputs alone)."""
     src, loc = _locate(parts)
     flat = np.asarray(flat, np.int64)
     n = flat.size
@@ -146,6 +148,8 @@ def gather(parts: list[Windows], flat: np.ndarray, model: ModelConfig, sensor: s
     out["weight"] = (np.arange(pad.size) < n).astype(np.float32)
     if model.motion_tokens:
         out.update(_motion(parts, src, loc, pad))
+    if model.tilt_head and tilt:
+        out["up"] = _up(parts, src, loc, pad)
     if label == "total":
         _require_bias(parts)
         bias = np.concatenate([r["sensor_bias"] for r in rows])
@@ -161,6 +165,14 @@ def _motion(parts: list[Windows], src: np.ndarray, loc: np.ndarray, pad: np.ndar
     cap = max(p.windows.interval_cap for p in parts)
     rows = [parts[src[i]].windows.motion([loc[i]], cap) for i in pad]
     return {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+
+
+def _up(parts: list[Windows], src: np.ndarray, loc: np.ndarray, pad: np.ndarray) -> np.ndarray:
+    for p in parts:
+        if p.windows.frame_up is None:
+            raise DataError("model.tilt_head learns from the ground truth's orientation; this "
+                            "recording has no ground truth", p.source)
+    return np.concatenate([parts[src[i]].windows.up([loc[i]]) for i in pad])
 
 
 def label_channels(six: np.ndarray, channels: int, sensor: str) -> np.ndarray:

@@ -144,8 +144,9 @@ def mean_offset_baseline(state: CalibState, seeds: int) -> jax.Array:
 
 def _init_state(config: CalibConfig, parts: list[Windows], stats: ImuStats, seeds: int,
                 abstract: bool = False):
-    # the label is not part of the state's shapes: a recording without ground truth restores
-    sample = gather(parts, np.arange(1), config.model, config.injection.single_sensor)
+    # the labels are not part of the state's shapes: a recording without ground truth restores
+    sample = gather(parts, np.arange(1), config.model, config.injection.single_sensor,
+                    tilt=False)
     keys = jax.random.split(jax.random.fold_in(_root(config), _INIT), seeds)
     if not abstract:
         return (create_train_state(config, keys[0], sample, stats) if seeds == 1 else

@@ -23,6 +23,9 @@ A model with an uncertainty output (``ModelConfig.variance``) adds ``w_nll`` tim
 :func:`gaussian_nll`, the negative log-likelihood of the label under ``N(o_hat, sigma^2)``
 per channel, with ``o_hat``'s gradient stopped: the uncertainty learns the estimate's error,
 and the estimate learns exactly as eq. 18 alone would teach it.
+
+A model with a tilt head (``ModelConfig.tilt_head``) adds ``w_tilt`` times
+:func:`tilt_loss`, the auxiliary task of telling gravity's direction per frame.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ import jax.numpy as jnp
 
 from uavcal_jax.calib.config import LossConfig
 
-__all__ = ["calibration_loss", "gaussian_nll", "loss_terms"]
+__all__ = ["calibration_loss", "gaussian_nll", "loss_terms", "tilt_loss"]
 
 
 def _mse(a: jax.Array, b: jax.Array, weight: jax.Array | None,
@@ -98,3 +101,22 @@ def gaussian_nll(pred: jax.Array, log_sigma: jax.Array, target: jax.Array,
         return jnp.mean(term)
     w = jnp.broadcast_to(weight[:, None].astype(term.dtype), term.shape)
     return jnp.sum(term * w) / jnp.maximum(jnp.sum(w), 1.0)
+
+
+def tilt_loss(pred_up: jax.Array, up: jax.Array, mask: jax.Array,
+              weight: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    """``(loss, angle)``, scalars: the mean over labelled frames of ``|up_hat - up|^2`` and
+    of the angle between them (degrees, for reporting), for the tilt head's ``pred_up`` and
+    the true unit vectors ``up`` ``(B, T, 3)`` (a zero ``up`` marks a frame without ground
+    truth), ``mask (B, T)`` the real frames and ``weight (B,)`` (0/1) the real windows."""
+    up = up.astype(jnp.float32)
+    pred_up = pred_up.astype(jnp.float32)
+    labelled = jnp.asarray(mask, bool) & (jnp.sum(jnp.square(up), axis=-1) > 0.25)
+    w = labelled.astype(jnp.float32)
+    if weight is not None:
+        w = w * weight.astype(jnp.float32)[:, None]
+    total = jnp.maximum(jnp.sum(w), 1.0)
+    loss = jnp.sum(w * jnp.sum(jnp.square(pred_up - up), axis=-1)) / total
+    cos = jnp.sum(pred_up * up, axis=-1) / jnp.maximum(jnp.linalg.norm(pred_up, axis=-1), 1e-9)
+    angle = jnp.degrees(jnp.arccos(jnp.clip(cos, -1.0, 1.0)))
+    return loss, jnp.sum(w * angle) / total

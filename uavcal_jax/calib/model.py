@@ -44,6 +44,11 @@ is summed into the fused sequence with ``T_v + T_i``. ``closed_form="rotation_ls
 the head at the rotation residuals' least-squares gyro error (``"rotation_window_mean"``: the
 same, with the window mean on the accelerometer).
 
+**Tilt** (``ModelConfig.tilt_head``): a linear head on each frame's row of the fusion
+encoder's output predicts ``up (3,)``, gravity's reaction in the IMU frame at that frame,
+sown as ``("intermediates", "tilt")`` ``(B, n, 3)`` (apply with ``mutable=["intermediates"]``
+to read it; the returned offsets do not change).
+
 **Uncertainty** (``ModelConfig.variance``): a second linear head on the decoder's output,
 its gradient stopped there (the offsets' features are not trained by it), gives each channel's
 log standard deviation of the estimate's error, ``log(unit) + v`` (``unit`` the correction's,
@@ -262,6 +267,9 @@ class NoisePredictor(nn.Module):
         n = tokens.shape[1]
         x = tokens + _positions(self, "pos_fusion", c.max_frames or n, n, c.d_model)
         memory = Encoder(c, name="encoder")(x, mask, deterministic=deterministic)
+        if c.tilt_head:
+            self.sow("intermediates", "tilt", nn.Dense(
+                3, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT, name="tilt_head")(memory))
         query = self.param("query", _embedding_init, (1, 1, c.d_model), F32)
         query = jnp.broadcast_to(query, (tokens.shape[0], 1, c.d_model))
         out = Decoder(c, name="decoder")(query, memory, mask, deterministic=deterministic)

@@ -11,7 +11,8 @@ drawn uniformly on SO(3) (:func:`random_mountings`) turns the IMU frame, so that
   ``gyro_seq (B, T, S, 3)``: ``v R`` (row vectors);
 - the body rotations the camera sees over each interval, ``rot_cam (B, T, 3, 3)``:
   ``R^T rot_cam R``;
-- the sensor's own bias of the ``total`` label, ``bias (B, C)``: ``v R``.
+- the sensor's own bias of the ``total`` label, ``bias (B, C)``, and the tilt head's label
+  ``up (B, T, 3)``: ``v R``.
 
 The frames do not change (the camera stays on the airframe; only the IMU turns). The offset
 is drawn afterwards, in the turned frame, as the protocol draws it. Standardisation then
@@ -55,10 +56,10 @@ def _turn_triplets(values: jax.Array, R: jax.Array) -> jax.Array:
 def remount(batch: dict, R: jax.Array) -> dict:
     """``batch`` (a training batch of :mod:`uavcal_jax.calib.train`) read through the IMU
     mountings ``R (B, 3, 3)`` (module docstring): ``imu``, ``bias``, ``gyro_seq`` and
-    ``rot_cam`` turned where present, everything else unchanged."""
+    ``rot_cam`` (and the tilt label ``up``) turned where present, everything else unchanged."""
     R = jnp.asarray(R, jnp.float32)
     out = dict(batch)
-    for name in ("imu", "bias", "gyro_seq"):
+    for name in ("imu", "bias", "gyro_seq", "up"):
         if name in batch:
             out[name] = _turn_triplets(jnp.asarray(batch[name], jnp.float32), R)
     if "rot_cam" in batch:

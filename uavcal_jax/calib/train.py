@@ -50,7 +50,7 @@ from uavcal_jax.calib.inject import (
     offset_moments,
     training_offsets,
 )
-from uavcal_jax.calib.loss import calibration_loss, gaussian_nll
+from uavcal_jax.calib.loss import calibration_loss, gaussian_nll, tilt_loss
 from uavcal_jax.calib.metrics import metric_sums
 from uavcal_jax.calib.model import MOTION_KEYS, NORMALIZATION, Calibrator, split_prediction
 from uavcal_jax.calib.mounting import isotropic_statistics, random_mountings, remount
@@ -216,18 +216,19 @@ def _weight(batch: dict, size: int) -> jax.Array:
 
 def _apply(state: CalibState, params, frames, imu, mask, *, train: bool, key=None,
            motion=None):
-    """Predictions ``(B, C)`` and the new batch statistics."""
+    """``(out, batch_stats, tilt)``: the model's output (:func:`split_prediction`), the new
+    batch statistics and the tilt head's ``(B, T, 3)`` (``None`` without one)."""
     model = state.model
     variables = state.replace(params=params).variables()
-    if not train:
-        return model.apply(variables, frames, imu, mask, motion), state.batch_stats
-    rngs = {"dropout": key}
-    if state.batch_stats:
-        pred, updates = model.apply(variables, frames, imu, mask, motion, deterministic=False,
-                                    rngs=rngs, mutable=["batch_stats"])
-        return pred, updates["batch_stats"]
-    return model.apply(variables, frames, imu, mask, motion, deterministic=False,
-                       rngs=rngs), {}
+    mutable = (["batch_stats"] if train and state.batch_stats else []) + (
+        ["intermediates"] if state.config.model.tilt_head else [])
+    kwargs = {"deterministic": False, "rngs": {"dropout": key}} if train else {}
+    if not mutable:
+        return model.apply(variables, frames, imu, mask, motion, **kwargs), state.batch_stats, None
+    out, updates = model.apply(variables, frames, imu, mask, motion, mutable=mutable, **kwargs)
+    tilt = updates["intermediates"]["noise_predictor"]["tilt"][0] if "intermediates" in (
+        updates) else None
+    return out, updates.get("batch_stats", state.batch_stats), tilt
 
 
 def _offset_scale(state: CalibState) -> jax.Array:
@@ -242,15 +243,20 @@ def _label(batch: dict, offsets: jax.Array) -> jax.Array:
     return offsets + batch["bias"] if "bias" in batch else offsets
 
 
-def _loss(state: CalibState, pred, log_sigma, target, weight):
+def _loss(state: CalibState, pred, log_sigma, target, weight, tilt=None, batch=None):
     """Eq. 18 (:func:`~uavcal_jax.calib.loss.calibration_loss`), plus ``w_nll`` times the
-    uncertainty's negative log-likelihood (term ``nll``) for a model that predicts one."""
+    uncertainty's negative log-likelihood (term ``nll``) for a model that predicts one, plus
+    ``w_tilt`` times the tilt head's loss against ``batch["up"]`` (terms ``tilt`` and
+    ``tilt_deg``, :func:`~uavcal_jax.calib.loss.tilt_loss`) for a model with one."""
     config = state.config.loss
     loss, terms = calibration_loss(pred, target, config, weight, _offset_scale(state))
-    if log_sigma is None:
-        return loss, terms
-    nll = gaussian_nll(pred, log_sigma, target, weight)
-    return loss + config.w_nll * nll, {**terms, "nll": nll}
+    if log_sigma is not None:
+        nll = gaussian_nll(pred, log_sigma, target, weight)
+        loss, terms = loss + config.w_nll * nll, {**terms, "nll": nll}
+    if tilt is not None and "up" in batch:  # evaluated without ground truth: no tilt term
+        term, angle = tilt_loss(tilt, batch["up"], batch["mask"], weight)
+        loss, terms = loss + config.w_tilt * term, {**terms, "tilt": term, "tilt_deg": angle}
+    return loss, terms
 
 
 def _train_step(state: CalibState, batch: dict, key: jax.Array):
@@ -267,10 +273,10 @@ def _train_step(state: CalibState, batch: dict, key: jax.Array):
     target = _label(batch, offsets)
 
     def loss_fn(params):
-        out, stats = _apply(state, params, frames, imu, mask, train=True, key=k_dropout,
-                            motion=motion)
+        out, stats, tilt = _apply(state, params, frames, imu, mask, train=True, key=k_dropout,
+                                  motion=motion)
         pred, log_sigma = split_prediction(out, config.model)
-        loss, terms = _loss(state, pred, log_sigma, target, weight)
+        loss, terms = _loss(state, pred, log_sigma, target, weight, tilt, batch)
         return loss, (terms, stats, pred)
 
     (loss, (terms, batch_stats, pred)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
@@ -290,11 +296,11 @@ def _eval_step(state: CalibState, batch: dict):
     frames, clean, mask = _inputs(config, batch)
     weight = _weight(batch, clean.shape[0])
     offsets = jnp.asarray(batch["offset"], jnp.float32)
-    out, _ = _apply(state, state.params, frames, inject(clean, offsets, mask), mask,
-                    train=False, motion=_motion(config, batch, offsets))
+    out, _, tilt = _apply(state, state.params, frames, inject(clean, offsets, mask), mask,
+                          train=False, motion=_motion(config, batch, offsets))
     pred, log_sigma = split_prediction(out, config.model)
     target = _label(batch, offsets)
-    loss, terms = _loss(state, pred, log_sigma, target, weight)
+    loss, terms = _loss(state, pred, log_sigma, target, weight, tilt, batch)
     result = {"loss": loss, **terms, "sums": metric_sums(pred, target, weight, log_sigma),
               "pred": pred}
     return result if log_sigma is None else {**result, "log_sigma": log_sigma}

@@ -203,6 +203,10 @@ class WindowSet:
         frame_R: (F, 3, 3) float64 body orientation per used frame (module docstring), or
             ``None`` when ``config.rotations`` is ``"none"``.
         frame_R_segment: (F,) int64 segment of each ``frame_R`` (``-1``: none).
+        frame_up: (F, 3) float32 unit vector of gravity's reaction ("up", world +z) in the
+            body frame at each used frame, from the ground truth's orientation (zero for a
+            frame outside its span); ``None`` without ground truth. The label of the
+            calibrator's tilt head (``ModelConfig.tilt_head``).
     """
 
     config: WindowConfig
@@ -222,6 +226,7 @@ class WindowSet:
     frame_imu: np.ndarray | None = None
     frame_R: np.ndarray | None = None
     frame_R_segment: np.ndarray | None = None
+    frame_up: np.ndarray | None = None
 
     @property
     def frame_R_valid(self) -> np.ndarray | None:
@@ -306,6 +311,19 @@ class WindowSet:
             both orientations of one segment and at most ``S`` samples.
         """
         return interval_motion(self, indices, cap)
+
+    def up(self, indices) -> np.ndarray:
+        """``(B, T, 3)`` float32 :attr:`frame_up` at the slots of windows ``indices``, zero
+        on padded slots and frames without ground truth (a zero vector marks "no label").
+
+        Raises:
+            ValueError: the windows have no ground-truth orientation (``frame_up`` None).
+        """
+        if self.frame_up is None:
+            raise ValueError(f"{self.name}: no ground-truth orientation (frame_up)")
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        idx, mask = self.frame_index[indices], self.frame_mask[indices]
+        return np.where(mask[..., None], self.frame_up[np.maximum(idx, 0)], np.float32(0.0))
 
     def _bias(self, indices: np.ndarray) -> dict:
         return {} if self.sensor_bias is None else {"sensor_bias": self.sensor_bias[indices]}
@@ -422,11 +440,15 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
     if config.imu_sampling == "interval_mean":
         frame_imu = interval_mean_imu(frame_t, config.frame_step * period_ns, imu.t_ns,
                                       np.concatenate([imu.gyro, imu.accel], axis=1), imu_index)
-    frame_R = frame_seg = None
+    frame_R = frame_seg = frame_up = None
+    if sequence.ground_truth is not None:
+        true_R, true_seg = oracle_orientations(sequence.ground_truth, frame_t)
+        # R is world-from-body: up (world +z) in the body frame is R^T e_z, R's third row
+        frame_up = np.where((true_seg >= 0)[:, None], true_R[:, 2, :], 0.0).astype(np.float32)
     if config.rotations == "oracle":
         if sequence.ground_truth is None:
             raise DataError("rotations='oracle' needs the recording's ground truth", where)
-        frame_R, frame_seg = oracle_orientations(sequence.ground_truth, frame_t)
+        frame_R, frame_seg = true_R, true_seg
     elif config.rotations == "visual":
         if visual_rotations is None:
             raise DataError("rotations='visual' needs the camera's relative rotations "
@@ -442,5 +464,5 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
         sensor_bias=None if any(b is None for b in bias) else np.stack(bias),
         meta={"camera": config.camera, "rate_hz": rate, "frames_per_window": T,
               "frame_step": config.frame_step},
-        frame_imu=frame_imu, frame_R=frame_R, frame_R_segment=frame_seg,
+        frame_imu=frame_imu, frame_R=frame_R, frame_R_segment=frame_seg, frame_up=frame_up,
     )
