@@ -402,6 +402,7 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
             t0 = time.perf_counter()
             order = epoch_order(root, epoch, n)
             loss = np.zeros(seeds)
+            tilt_deg = np.zeros(seeds)  # the tilt head's mean angle error (model.tilt_head)
             bar = progress_bar(range(steps), desc=f"epoch {epoch + 1}/{config.train.epochs}",
                                enabled=progress, unit="step")
             for b in bar:
@@ -410,6 +411,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
                                label=config.injection.target)
                 state, m = step_fn(state, batch, _step_keys(root, seeds, epoch * steps + b))
                 loss += np.reshape(jax.device_get(m["loss"]), -1) * flat.size
+                if "tilt_deg" in m:
+                    tilt_deg += np.reshape(jax.device_get(m["tilt_deg"]), -1) * flat.size
             loss /= n
             if not np.all(np.isfinite(loss)):
                 raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}: "
@@ -417,6 +420,8 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
             row: dict[str, Any] = {"epoch": epoch + 1, "loss": float(loss.mean()),
                                    "loss_per_seed": loss.tolist(),
                                    "train_time_s": time.perf_counter() - t0}
+            if config.model.tilt_head:
+                row["tilt_deg"] = float(tilt_deg.mean() / n)
             if val:
                 v = evaluate(state, val, seeds, draws=loop.val_offsets,
                              label_bias=label_bias)
