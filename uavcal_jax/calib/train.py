@@ -226,8 +226,8 @@ def _apply(state: CalibState, params, frames, imu, mask, *, train: bool, key=Non
     if not mutable:
         return model.apply(variables, frames, imu, mask, motion, **kwargs), state.batch_stats, None
     out, updates = model.apply(variables, frames, imu, mask, motion, mutable=mutable, **kwargs)
-    tilt = updates["intermediates"]["noise_predictor"]["tilt"][0] if "intermediates" in (
-        updates) else None
+    sown = updates.get("intermediates")
+    tilt = sown["noise_predictor"]["tilt"][0] if sown else None
     return out, updates.get("batch_stats", state.batch_stats), tilt
 
 
