@@ -42,6 +42,10 @@ Motion inputs (issue 20; off by default, nothing changes then):
   ground truth: ``-1``). ``"visual"``: the camera's relative rotations (``make_windows``'
   ``visual_rotations``) chained along the stream; a frame with no valid pair from an earlier
   frame starts a new segment, so intervals across a failed pair are invalid.
+
+One module over 450 lines, one job: cutting a recording into windows and the per-frame
+arrays they index (IMU, rotations, tilt labels); the interval inputs live in
+:mod:`uavcal_jax.data.window_motion`.
 """
 
 from __future__ import annotations
