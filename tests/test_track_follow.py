@@ -282,3 +282,22 @@ def test_box_iou_against_hand_values():
                     np.array([[5.0, 0.0, 15.0, 10.0], [20.0, 20.0, 30.0, 30.0],
                               [0.0, 0.0, 10.0, 10.0]]))
     np.testing.assert_allclose(iou, [[50.0 / 150.0, 0.0, 1.0]])
+
+
+def test_a_chain_bridges_a_few_undetected_frames_at_the_image_edge():
+    """A car at the right edge goes undetected for 8 frames and comes back where it was, as
+    a new track: ``stitch_gap`` 10 bridges the gap, 5 does not."""
+    boxes, classes = [], []
+    for k in range(30):
+        frame = [] if 10 <= k < 18 else [[650.0, 200.0 + k, 752.0, 320.0 + k]]
+        boxes.append(np.array(frame).reshape(-1, 4))
+        classes.append(np.zeros(len(frame), np.int64))
+    ids = A.assign_track_ids(boxes, classes)
+    assert int(ids[0][0]) != int(ids[29][0])  # the association ended the first track
+    short = A.followed_detections(ids, boxes, classes, int(ids[0][0]),
+                                  A.AssociateConfig(stitch_gap=5))
+    long = A.followed_detections(ids, boxes, classes, int(ids[0][0]),
+                                 A.AssociateConfig(stitch_gap=10))
+    seen = np.array([len(b) > 0 for b in boxes])
+    assert (short[:10] == 0).all() and (short[18:] < 0).all()
+    np.testing.assert_array_equal(long >= 0, seen)
