@@ -14,10 +14,9 @@ track ended with the car in full view for 1.5 s more). The chain goes on with th
 the same class whose box, within ``stitch_gap`` detected frames after the chain's last one,
 overlaps that last box by ``stitch_iou`` (and backwards the same way). Where no box
 overlaps, the target has left the image or was hidden for longer, and a follower re-acquires
-it when it shows
-again (as the closed loop's chooser does): with ``reacquire`` the chain goes on with the next
-track of its class to appear (the longest of those starting first; backwards, of those ending
-last), if a caller's plausibility check agrees (``uavcal run`` locates both boxes and asks that
+it when it shows again (as the closed loop's chooser does): with ``reacquire`` the chain goes
+on with the next track of its class to appear (the longest of those starting first; backwards,
+of those ending last), if a caller's plausibility check agrees (``uavcal run`` locates both boxes and asks that
 the target could have driven between them). It is off by default: on a simulated V2_03
 flight the car, hidden 1 s behind a person, came back as a new track that the chain otherwise
 misses for the flight's last 6.4 s (filtered RMSE 0.66 m without, 0.54 m with), but the
