@@ -7,24 +7,23 @@ assignment on IoU (``scipy.optimize.linear_sum_assignment``), pairs below ``min_
 matched. Unmatched detections start new tracks; a track unmatched for more than
 ``max_missed`` frames ends. Boxes are ``(x1, y1, x2, y2)`` pixels.
 
-The target followed is a chain of tracks (:func:`followed_detections`): a track's identity
-breaks where the detector merges two overlapping targets into one box and splits them again
-(on a simulated V2_02 flight a passing car took the followed car's box for 0.2 s, and its
-track ended with the car in full view for 1.5 s more). The chain goes on with the track of
-the same class whose box, within ``stitch_gap`` detected frames after the chain's last one,
-overlaps that last box by ``stitch_iou`` (and backwards the same way). Where no box
-overlaps, the target has left the image or was hidden for longer, and a follower re-acquires
-it when it shows again (as the closed loop's chooser does): with ``reacquire`` the chain goes
-on with the next track of its class to appear (the longest of those starting first; backwards,
-of those ending last), if a caller's plausibility check agrees (``uavcal run`` locates both boxes and asks that
-the target could have driven between them). It is off by default: on a simulated V2_03
-flight the car, hidden 1 s behind a person, came back as a new track that the chain otherwise
-misses for the flight's last 6.4 s (filtered RMSE 0.66 m without, 0.54 m with), but the
-segments it adds are the hard ones (a car cut by the border, seen end-on, just re-found):
-over nine simulated flights it raised the filtered median on three (V2_03 0.35 to 0.38 m,
-V2_02 0.28 to 0.31 m, a forward UZH-FPV flight 0.98 to 1.15 m) and the RMSE on three
-(V2_02 0.79 to 0.83 m, indoor_45_12 0.37 to 0.77 m, the forward flight 1.68 to 2.00 m), and
-changed none of the others.
+The target followed is a chain of tracks (:func:`followed_detections`): a track's identity breaks
+where the detector merges two overlapping targets into one box and splits them again (on a simulated
+V2_02 flight a passing car took the followed car's box for 0.2 s, and its track ended with the car
+in full view for 1.5 s more). The chain goes on with the track of the same class whose box, within
+``stitch_gap`` detected frames after the chain's last one, overlaps that last box by ``stitch_iou``
+(and backwards the same way). Where no box overlaps, the target has left the image or was hidden for
+longer, and a follower re-acquires it when it shows again (as the closed loop's chooser does): with
+``reacquire`` the chain goes on with the next track of its class to appear (the longest of those
+starting first; backwards, of those ending last), if a caller's plausibility check agrees (``uavcal
+run`` locates both boxes and asks that the target could have driven between them). It is off by
+default: on a simulated V2_03 flight the car, hidden 1 s behind a person, came back as a new track
+that the chain otherwise misses for the flight's last 6.4 s (filtered RMSE 0.66 m without, 0.54 m
+with), but the segments it adds are the hard ones (a car cut by the border, seen end-on, just
+re-found): over nine simulated flights it raised the filtered median on three (V2_03 0.35 to 0.38 m,
+V2_02 0.28 to 0.31 m, a forward UZH-FPV flight 0.98 to 1.15 m) and the RMSE on three (V2_02 0.79 to
+0.83 m, indoor_45_12 0.37 to 0.77 m, the forward flight 1.68 to 2.00 m), and changed none of the
+others.
 
 A target seen from close by and steeply above can come out of the detector as a whole box plus
 a box of a part of it (a car's bonnet), which NMS keeps: their IoU is small. Such a part would
