@@ -301,3 +301,52 @@ def test_a_chain_bridges_a_few_undetected_frames_at_the_image_edge():
     seen = np.array([len(b) > 0 for b in boxes])
     assert (short[:10] == 0).all() and (short[18:] < 0).all()
     np.testing.assert_array_equal(long >= 0, seen)
+
+
+def test_a_target_seen_past_another_inside_its_box_is_kept():
+    """A far car's box inside a near car's is a part only if the two may be one target."""
+    near, far = [150.0, 100.0, 550.0, 480.0], [270.0, 180.0, 520.0, 350.0]
+    boxes, classes = np.array([near, far]), np.array([0, 0])
+    asked = []
+
+    def apart(i, j):
+        asked.append((i, j))
+        return False
+
+    np.testing.assert_array_equal(A.contained_duplicates(boxes, classes, 0.6, apart),
+                                  [True, True])
+    assert asked == [(0, 1)]  # the larger box first, asked about the one inside it
+    np.testing.assert_array_equal(
+        A.contained_duplicates(boxes, classes, 0.6, lambda i, j: True), [True, False])
+
+
+def test_association_does_not_match_a_box_the_localisation_refuses():
+    """Frame 2's box overlaps the track's, but the callback says it is located elsewhere:
+    it starts a new track, and a chain does not stitch onto it either."""
+    boxes = [np.array([[100.0, 100.0, 300.0, 300.0]]) + k for k in range(4)]
+    classes = [np.zeros(1, np.int64)] * 4
+    assert [int(i[0]) for i in A.assign_track_ids(boxes, classes)] == [0, 0, 0, 0]
+    jump = 2  # the first frame of the other target
+
+    def same(k_a, i_a, k_b, i_b):
+        return (k_a < jump) == (k_b < jump)
+
+    ids = A.assign_track_ids(boxes, classes, A.AssociateConfig(), same)
+    assert [int(i[0]) for i in ids] == [0, 0, 1, 1]
+    pick = A.followed_detections(ids, boxes, classes, 0, A.AssociateConfig(), same)
+    np.testing.assert_array_equal(pick, [0, 0, -1, -1])
+    pick = A.followed_detections(ids, boxes, classes, 0, A.AssociateConfig())
+    np.testing.assert_array_equal(pick, [0, 0, 0, 0])  # unchecked, the chain stitches on
+
+
+def test_a_chain_does_not_stitch_onto_a_target_boxed_beside_it():
+    """The chain's track (a far car) starts at frame 5 beside a near car's longer track
+    whose boxes overlap it: that track is another target, not the chain's past."""
+    near = [[100.0, 100.0, 400.0, 400.0]] * 10
+    boxes = [np.array([near[k]] + ([[200.0, 150.0, 380.0, 330.0]] if k >= 5 else []))
+             for k in range(10)]
+    classes = [np.zeros(len(b), np.int64) for b in boxes]
+    ids = [np.array([0] + ([1] if k >= 5 else [])) for k in range(10)]
+    assert A.box_iou(boxes[5][:1], boxes[5][1:])[0, 0] > 0.3
+    pick = A.followed_detections(ids, boxes, classes, 1)
+    np.testing.assert_array_equal(pick, [-1] * 5 + [1] * 5)

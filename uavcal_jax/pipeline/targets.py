@@ -5,13 +5,14 @@ and the detector have run over a recording:
 
 1. the detections of every detected frame, less the boxes of a part of a larger one
    (:func:`uavcal_jax.track.associate.contained_duplicates`), are associated into tracks
-   (:func:`uavcal_jax.track.associate.assign_track_ids`) and the longest track of the class
+   (:func:`uavcal_jax.track.associate.assign_track_ids`), two boxes of the class followed
+   taken for one target only where they are located where it could have driven between them
+   (:func:`_same_target`), and the longest track of the class
    to follow is the target (:func:`~uavcal_jax.track.associate.longest_track`), its length
    counted in boxes inside the image (a box cut by the border cannot be located), continued
    through identity breaks by the tracks that overlap its ends, and (with
    ``associate.reacquire``) after the target was out of view by the next track of its class
-   to appear whose first box is located where the target could have driven to
-   (:func:`_could_reach`; :func:`~uavcal_jax.track.associate.followed_detections`);
+   to appear (:func:`~uavcal_jax.track.associate.followed_detections`);
 2. each of its boxes is located (:class:`Localizer`): from the depth image (``depth0``) when
    the recording has one, else from the stereo pair's disparity (``cam1``), else not at all,
    with the reason; a box cut by the image border, or a frame without a VIO pose, is not
@@ -273,21 +274,17 @@ def centre_on_box(times_s: np.ndarray, raw_frames: np.ndarray, front: np.ndarray
     return at_heading(np.concatenate([[np.nan], heading[:-1]])[raw_frames])  # causal
 
 
-def _could_reach(ran, boxes, poses, localizer: Localizer, t_ns, config: AssociateConfig,
-                 k_end: int, i_end: int, k: int, i: int) -> bool:
-    """Could the target last seen as box ``i_end`` of detected frame ``k_end`` be box ``i`` of
-    detected frame ``k``: both located within ``reacquire_radius + reacquire_speed * gap``?
-    (Yes where either cannot be located: nothing says otherwise.)"""
-    points = []
-    for kk, ii in ((k_end, i_end), (k, i)):
-        frame = ran[kk]
-        located = localizer.locate(frame, boxes[kk][ii], poses[frame])
-        if not located.located:
-            return True
-        points.append(np.asarray(located.point, np.float64))
-    gap_s = abs(int(t_ns[ran[k]]) - int(t_ns[ran[k_end]])) * 1e-9
-    reach = config.reacquire_radius + config.reacquire_speed * gap_s
-    return bool(np.linalg.norm(points[1] - points[0]) <= reach)
+def _same_target(located, t_ns, config: AssociateConfig, frame_a: int, i_a: int, frame_b: int,
+                 i_b: int) -> bool:
+    """May box ``i_a`` of left frame ``frame_a`` and box ``i_b`` of frame ``frame_b`` be one
+    target: both located (``located(frame, box)``) within ``same_radius + target_speed *
+    gap``? (Yes where either cannot be located: nothing says otherwise.)"""
+    a, b = located(frame_a, i_a), located(frame_b, i_b)
+    if not (a.located and b.located):
+        return True
+    gap_s = abs(int(t_ns[frame_b]) - int(t_ns[frame_a])) * 1e-9
+    reach = config.same_radius + config.target_speed * gap_s
+    return bool(np.linalg.norm(np.asarray(b.point) - np.asarray(a.point)) <= reach)
 
 
 def track_target(sequence: Sequence, detections: list[ImageDetections | None],
@@ -310,14 +307,35 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     class_id = _class_id(class_names, config.detect.follow_class)
     cam0 = sequence.camera("cam0")
     T = len(cam0)
+    locate_ms: list[float] = []
+
+    @functools.cache
+    def located(frame: int, i: int) -> LocatedPoint:
+        """Detection ``i`` of left frame ``frame`` located, once (association, the part check
+        and the chain ask for the same boxes)."""
+        t0 = time.perf_counter()
+        out = localizer.locate(frame, detections[frame].boxes[i], poses[frame])
+        locate_ms.append(1e3 * (time.perf_counter() - t0))
+        return out
+
+    same = functools.partial(_same_target, located, cam0.t_ns, config.associate)
     ran = [k for k in range(T) if detections[k] is not None]
-    # a part of a target boxed beside the whole is not a target of its own
-    kept = [np.flatnonzero(contained_duplicates(detections[k].boxes, detections[k].classes,
-                                                config.associate.merge_contained))
-            for k in ran]
+    # a part of a target boxed beside the whole is not a target of its own; another target
+    # seen past it, inside its box, is
+    kept = [np.flatnonzero(contained_duplicates(
+        detections[k].boxes, detections[k].classes, config.associate.merge_contained,
+        lambda i, j, k=k: detections[k].classes[j] != class_id or same(k, i, k, j)))
+        for k in ran]
     boxes_ran = [detections[k].boxes[i] for k, i in zip(ran, kept, strict=True)]
     classes_ran = [detections[k].classes[i] for k, i in zip(ran, kept, strict=True)]
-    ids_ran = assign_track_ids(boxes_ran, classes_ran, config.associate)
+
+    def same_ran(k_a: int, i_a: int, k_b: int, i_b: int) -> bool:
+        """:func:`_same_target` for box ``i`` of detected frame ``k`` (the kept boxes)."""
+        if classes_ran[k_b][i_b] != class_id:
+            return True  # only the class followed is located
+        return same(ran[k_a], int(kept[k_a][i_a]), ran[k_b], int(kept[k_b][i_b]))
+
+    ids_ran = assign_track_ids(boxes_ran, classes_ran, config.associate, same_ran)
     track_ids: list[np.ndarray | None] = [None] * T
     for k, ids, index in zip(ran, ids_ran, kept, strict=True):
         track_ids[k] = np.full(len(detections[k].boxes), -1, np.int64)
@@ -327,29 +345,25 @@ def track_target(sequence: Sequence, detections: list[ImageDetections | None],
     if chosen is None:  # every box of the class is cut by the border: follow it anyway
         chosen = longest_track(ids_ran, classes_ran, class_id)
     boxes, scores = np.full((T, 4), np.nan), np.full(T, np.nan)
-    raw_frames, points, covs, views, seen_boxes, locate_ms = [], [], [], [], [], []
+    raw_frames, points, covs, views, seen_boxes = [], [], [], [], []
     not_located: collections.Counter = collections.Counter()
     if chosen is not None:
-        plausible = functools.partial(_could_reach, ran, boxes_ran, poses, localizer,
-                                      cam0.t_ns, config.associate)
         pick = followed_detections(ids_ran, boxes_ran, classes_ran, chosen, config.associate,
-                                   plausible)
+                                   same_ran)
         for k, i, index in zip(ran, pick, kept, strict=True):
             if i < 0:
                 continue
-            i = index[i]
+            i = int(index[i])
             boxes[k], scores[k] = detections[k].boxes[i], detections[k].scores[i]
-            t0 = time.perf_counter()
-            located = localizer.locate(k, boxes[k], poses[k])
-            locate_ms.append(1e3 * (time.perf_counter() - t0))
-            if located.located:
+            point = located(k, i)
+            if point.located:
                 raw_frames.append(k)
-                points.append(located.point)
-                covs.append(located.covariance)
-                views.append(located.T_WC)
-                seen_boxes.append(located.box)
+                points.append(point.point)
+                covs.append(point.covariance)
+                views.append(point.T_WC)
+                seen_boxes.append(point.box)
             else:
-                not_located[located.reason] += 1
+                not_located[point.reason] += 1
     times_s = (cam0.t_ns - cam0.t_ns[0]).astype(np.float64) * 1e-9
     raw_frames = np.asarray(raw_frames, np.int64)
     raw_points = np.asarray(points, np.float64).reshape(-1, 3)

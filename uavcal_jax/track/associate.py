@@ -7,30 +7,40 @@ assignment on IoU (``scipy.optimize.linear_sum_assignment``), pairs below ``min_
 matched. Unmatched detections start new tracks; a track unmatched for more than
 ``max_missed`` frames ends. Boxes are ``(x1, y1, x2, y2)`` pixels.
 
+Image overlap alone cannot tell two targets apart where one passes in front of the other. A
+caller that locates boxes in 3D passes a ``same`` check (``uavcal run``: both located within
+``same_radius + target_speed * gap``): a match, a stitch and a re-acquisition it refuses are
+not made. On a simulated MH_04 flight a near car drove across the followed car's box: the far
+car's box, inside the near one's, was dropped as its part, and the near car's track took the
+far car's box when the near one left the image (located 2.3 m apart in one frame); the track
+chosen was half one car, half the other (filtered RMSE 2.16 m; 0.27 m with the check).
+
 The target followed is a chain of tracks (:func:`followed_detections`): a track's identity breaks
-where the detector merges two overlapping targets into one box and splits them again (on a simulated
-V2_02 flight a passing car took the followed car's box for 0.2 s, and its track ended with the car
-in full view for 1.5 s more). The chain goes on with the track of the same class whose box, within
-``stitch_gap`` detected frames after the chain's last one, overlaps that last box by ``stitch_iou``
-(and backwards the same way). Where no box overlaps, the target has left the image or was hidden for
-longer, and a follower re-acquires it when it shows again (as the closed loop's chooser does): with
-``reacquire`` the chain goes on with the next track of its class to appear (the longest of those
-starting first; backwards, of those ending last), if a caller's plausibility check agrees (``uavcal
-run`` locates both boxes and asks that the target could have driven between them). It is off by
-default: on a simulated V2_03 flight the car, hidden 1 s behind a person, came back as a new track
-that the chain otherwise misses for the flight's last 6.4 s (filtered RMSE 0.66 m without, 0.54 m
-with), but the segments it adds are the hard ones (a car cut by the border, seen end-on, just
-re-found): over nine simulated flights it raised the filtered median on three (V2_03 0.35 to 0.38 m,
-V2_02 0.28 to 0.31 m, a forward UZH-FPV flight 0.98 to 1.15 m) and the RMSE on three (V2_02 0.79 to
-0.83 m, indoor_45_12 0.37 to 0.77 m, the forward flight 1.68 to 2.00 m), and changed none of the
-others.
+where the detector merges two overlapping targets into one box and splits them again (on a
+simulated V2_02 flight a passing car took the followed car's box for 0.2 s, and its track ended
+with the car in full view for 1.5 s more). The chain goes on with the track of the same class whose
+box, within ``stitch_gap`` detected frames after the chain's last one, overlaps that last box by
+``stitch_iou`` (and backwards the same way); a track boxed beside the chain's last box, in the same
+frame, is another target and is never taken. Where no box overlaps, the target has left the image
+or was hidden for longer, and a follower re-acquires it when it shows again (as the closed loop's
+chooser does): with ``reacquire`` the chain goes on with the next track of its class to appear (the
+longest of those starting first; backwards, of those ending last), if a caller's plausibility check
+agrees (``uavcal run`` locates both boxes and asks that the target could have driven between them).
+It is off by default: on a simulated V2_03 flight the car, hidden 1 s behind a person, came back as
+a new track that the chain otherwise misses for the flight's last 6.4 s (filtered RMSE 0.66 m
+without, 0.54 m with), but the segments it adds are the hard ones (a car cut by the border, seen
+end-on, just re-found): over nine simulated flights it raised the filtered median on three (V2_03
+0.35 to 0.38 m, V2_02 0.28 to 0.31 m, a forward UZH-FPV flight 0.98 to 1.15 m) and the RMSE on
+three (V2_02 0.79 to 0.83 m, indoor_45_12 0.37 to 0.77 m, the forward flight 1.68 to 2.00 m), and
+changed none of the others.
 
 A target seen from close by and steeply above can come out of the detector as a whole box plus
 a box of a part of it (a car's bonnet), which NMS keeps: their IoU is small. Such a part would
 start a track of its own and could take the followed chain (on a low FLU flight with a 45
 degree camera, 18 % of the frames located a part 1-2 m from the car's centre). Before
 association, :func:`contained_duplicates` drops a box mostly inside a larger one of the same
-class (``merge_contained``, intersection over the smaller box's area).
+class (``merge_contained``, intersection over the smaller box's area), unless the ``same`` check
+says it is another target seen past the larger one.
 """
 
 from __future__ import annotations
@@ -66,10 +76,10 @@ class AssociateConfig:
             (:func:`contained_duplicates`); ``None``: keep every box.
         reacquire: a chain with no overlapping continuation goes on with the next track of
             its class to appear (:func:`followed_detections`; off: the module docstring).
-        reacquire_speed: m/s, the fastest a target drives while unseen, and
-        reacquire_radius: m, the localisations' error allowed: ``uavcal run`` re-acquires
-            a track whose first box is located within ``reacquire_radius + reacquire_speed *
-            gap`` of the chain's last (the simulator's car drives at up to 6 m/s).
+        target_speed: m/s, the fastest a target drives (the simulator's car: 6 m/s), and
+        same_radius: m, the localisations' error allowed: ``uavcal run`` takes two boxes
+            for one target only where they are located within ``same_radius + target_speed
+            * gap`` of each other (the module docstring).
     """
 
     min_iou: float = 0.2
@@ -78,8 +88,8 @@ class AssociateConfig:
     stitch_iou: float = 0.3
     merge_contained: float | None = 0.6
     reacquire: bool = False
-    reacquire_speed: float = 6.0
-    reacquire_radius: float = 2.0
+    target_speed: float = 6.0
+    same_radius: float = 1.5
 
     def __post_init__(self):
         if not 0.0 <= self.min_iou < 1.0:
@@ -89,9 +99,9 @@ class AssociateConfig:
                              f"and {self.stitch_gap}")
         if not 0.0 < self.stitch_iou <= 1.0:
             raise ValueError(f"stitch_iou must be in (0, 1], got {self.stitch_iou}")
-        if self.reacquire_speed < 0.0 or self.reacquire_radius < 0.0:
-            raise ValueError(f"reacquire_speed and reacquire_radius must be >= 0, got "
-                             f"{self.reacquire_speed} and {self.reacquire_radius}")
+        if self.target_speed < 0.0 or self.same_radius < 0.0:
+            raise ValueError(f"target_speed and same_radius must be >= 0, got "
+                             f"{self.target_speed} and {self.same_radius}")
         if self.merge_contained is not None and not 0.0 < self.merge_contained <= 1.0:
             raise ValueError(f"merge_contained must be in (0, 1] or None, got "
                              f"{self.merge_contained}")
@@ -117,10 +127,14 @@ def _intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def contained_duplicates(boxes: np.ndarray, class_ids: np.ndarray,
-                         min_overlap: float | None) -> np.ndarray:
+                         min_overlap: float | None,
+                         same: Callable[[int, int], bool] | None = None) -> np.ndarray:
     """(N,) bool, ``True`` for the boxes to keep: largest first, a box whose intersection with
     a kept larger box of its class covers at least ``min_overlap`` of its own area is dropped
-    (``None``: all kept). Boxes ``(N, 4)`` ``x1, y1, x2, y2`` pixels, class ids ``(N,)``."""
+    (``None``: all kept). Boxes ``(N, 4)`` ``x1, y1, x2, y2`` pixels, class ids ``(N,)``.
+
+    ``same(i, j)``: may the larger box ``i`` and the box ``j`` inside it be one target? Where
+    not, ``j`` is another target seen past ``i`` and is kept (``None``: never asked)."""
     boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
     class_ids = np.asarray(class_ids, np.int64).reshape(-1)
     keep = np.ones(len(boxes), bool)
@@ -133,6 +147,8 @@ def contained_duplicates(boxes: np.ndarray, class_ids: np.ndarray,
             continue
         part = (keep & (class_ids == class_ids[i]) & (np.arange(len(boxes)) != i)
                 & (area <= area[i]) & (inter[i] >= min_overlap * np.maximum(area, 1e-12)))
+        if same is not None:
+            part &= np.array([p and same(int(i), j) for j, p in enumerate(part)], bool)
         keep &= ~part
     return keep
 
@@ -144,16 +160,22 @@ class _Track:
     box: np.ndarray  # last matched box
     velocity: np.ndarray  # box change per frame
     last_frame: int
+    last_index: int  # the last matched box's index in its frame
 
 
 def assign_track_ids(boxes: Sequence[np.ndarray], class_ids: Sequence[np.ndarray],
-              config: AssociateConfig = AssociateConfig()) -> list[np.ndarray]:
+                     config: AssociateConfig = AssociateConfig(),
+                     same: Callable[[int, int, int, int], bool] | None = None
+                     ) -> list[np.ndarray]:
     """Track ids for every detection of every frame.
 
     Args:
         boxes: per frame, (N_k, 4) detected boxes.
         class_ids: per frame, (N_k,) their class ids.
         config: :class:`AssociateConfig`.
+        same: ``same(k_last, i_last, k, i)``: may box ``i`` of frame ``k`` be the target of
+            a track whose last box was ``i_last`` of frame ``k_last``? Asked of the pairs that
+            overlap enough to match; a pair it refuses is not matched (``None``: yes).
 
     Returns:
         per frame, (N_k,) int track ids (0, 1, 2, ... in order of first appearance).
@@ -171,8 +193,13 @@ def assign_track_ids(boxes: Sequence[np.ndarray], class_ids: Sequence[np.ndarray
         if tracks and len(frame_boxes):
             predicted = np.stack([t.box + (k - t.last_frame) * t.velocity for t in tracks])
             iou = box_iou(predicted, frame_boxes)
-            same = np.array([t.class_id for t in tracks])[:, None] == frame_classes[None, :]
-            iou = np.where(same, iou, 0.0)
+            same_class = (np.array([t.class_id for t in tracks])[:, None]
+                          == frame_classes[None, :])
+            iou = np.where(same_class, iou, 0.0)
+            if same is not None:
+                for r, c in zip(*np.nonzero(iou >= max(config.min_iou, 1e-12)), strict=True):
+                    if not same(tracks[r].last_frame, tracks[r].last_index, k, int(c)):
+                        iou[r, c] = 0.0
             rows, cols = linear_sum_assignment(-iou)
             for r, c in zip(rows, cols, strict=True):
                 if iou[r, c] < max(config.min_iou, 1e-12):
@@ -180,10 +207,11 @@ def assign_track_ids(boxes: Sequence[np.ndarray], class_ids: Sequence[np.ndarray
                 track = tracks[r]
                 gap = k - track.last_frame
                 track.velocity = (frame_boxes[c] - track.box) / gap
-                track.box, track.last_frame = frame_boxes[c], k
+                track.box, track.last_frame, track.last_index = frame_boxes[c], k, int(c)
                 ids[c] = track.id
         for c in np.flatnonzero(ids < 0):
-            tracks.append(_Track(next_id, int(frame_classes[c]), frame_boxes[c], np.zeros(4), k))
+            tracks.append(_Track(next_id, int(frame_classes[c]), frame_boxes[c], np.zeros(4), k,
+                                 int(c)))
             ids[c] = next_id
             next_id += 1
         out.append(ids)
@@ -227,7 +255,7 @@ def followed_detections(track_ids: Sequence[np.ndarray], boxes: Sequence[np.ndar
         config: :class:`AssociateConfig` (``stitch_gap``, ``stitch_iou``, ``reacquire``).
         plausible: ``plausible(k_end, i_end, k, i)``: may detection ``i`` of frame ``k`` be
             the target whose last detection was ``i_end`` of frame ``k_end``? Asked before
-            re-acquiring (``None``: yes).
+            stitching and re-acquiring (``None``: yes).
 
     Returns:
         (T,) int detection indices.
@@ -262,12 +290,18 @@ def followed_detections(track_ids: Sequence[np.ndarray], boxes: Sequence[np.ndar
             for k in range(end + step, end + step * (config.stitch_gap + 2), step):
                 if not 0 <= k < T:
                     break
-                same = (classes[k] == class_id) & ~np.isin(ids[k], list(used))
+                # a track boxed beside the chain's last box is another target
+                same = (classes[k] == class_id) & ~np.isin(ids[k], [*used, *ids[end]])
                 if not same.any():
                     continue
                 iou = np.where(same, box_iou(ref, boxes[k])[0], 0.0)
-                if iou.max() >= config.stitch_iou:
-                    found = (k, int(ids[k][np.argmax(iou)]))
+                for i in np.argsort(-iou, kind="stable"):
+                    if iou[i] < config.stitch_iou:
+                        break
+                    if plausible is None or plausible(end, int(pick[end]), k, int(i)):
+                        found = (k, int(ids[k][i]))
+                        break
+                if found is not None:
                     break
             if found is None and config.reacquire:
                 found = _next_track(ids, classes, class_id, used, end, step, plausible, pick)
