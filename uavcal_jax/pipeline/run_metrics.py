@@ -224,10 +224,12 @@ def stage_timings(vio_timings: list[dict], detect_ms: np.ndarray, target: Target
     left out), ``mean``/``p95`` ms: the VIO's own stages (``vio_frontend``, ``vio_solve``,
     ``vio_marginalize``, ``vio_total``) and ``vio_wall`` (wall-clock time per frame while the
     detector ran beside it), ``detect`` (per detected frame: image load and network),
-    ``locate`` (per located box), ``filter`` and ``follow`` (one scan over all frames, second
-    call, per frame), and ``pipeline``: what a frame costs when the detector runs concurrently
-    with the VIO, ``max(vio_wall, detect / every) + locate + filter + follow`` (of the
-    means, and of the medians: on a shared CPU the mean carries other processes' stalls).
+    ``locate`` (per located box, with ``boxes_per_frame``: association locates every box of
+    the class followed that could continue a track, not the followed box alone), ``filter``
+    and ``follow`` (one scan over all frames, second call, per frame), and ``pipeline``: what
+    a frame costs when the detector runs concurrently with the VIO, ``max(vio_wall, detect /
+    every) + locate * boxes_per_frame + filter + follow`` (of the means, and of the medians:
+    on a shared CPU the mean carries other processes' stalls).
     ``compile_s``: the first call's extra time over the steady state, seconds, per stage.
     """
     rows = vio_timings[max(warmup, 1):]
@@ -235,6 +237,9 @@ def stage_timings(vio_timings: list[dict], detect_ms: np.ndarray, target: Target
           for k in ("frontend", "solve", "marginalize", "total", "wall")}
     ms["detect"] = _ms(detect_ms[warmup:])
     ms["locate"] = _ms(target.locate_ms[warmup:])
+    boxes_per_frame = target.locate_ms.size / max(frames, 1)
+    if ms["locate"] is not None:
+        ms["locate"]["boxes_per_frame"] = boxes_per_frame
     ms["filter"] = {"mean": target.filter_ms[1] / max(frames, 1), "p95": None, "frames": frames}
     ms["follow"] = {"mean": follow_ms[1] / max(frames, 1), "p95": None, "frames": frames}
 
@@ -242,7 +247,8 @@ def stage_timings(vio_timings: list[dict], detect_ms: np.ndarray, target: Target
         return 0.0 if ms[key] is None else ms[key].get(stat, ms[key]["mean"])
 
     ms["pipeline"] = {stat: max(mean("vio_wall", stat), mean("detect", stat) / every)
-                      + mean("locate", stat) + mean("filter") + mean("follow")
+                      + mean("locate", stat) * boxes_per_frame + mean("filter")
+                      + mean("follow")
                       for stat in ("mean", "median")} | {"p95": None, "frames": frames}
     first_vio = vio_timings[0].get("total", np.nan) if vio_timings else np.nan
     compile_s = {
