@@ -42,36 +42,33 @@ CLASS_HALF_SIZE_M = {"car": (2.1, 0.875, 0.725), "person": (0.25, 0.17, 0.86)}
 #: of them sits 1.1-1.5 m before its centre, varying with the view (on the flight above, raw
 #: median 0.62 m with 0.2 and the best extent, 0.37 m with 0.5).
 RUN_LOCATE = LocateConfig(quantile=0.5)
-#: The run's filter: a car that drives, turns and stops (the simulator's accelerates up to
-#: 4 m/s^2, turns at up to 1.2 rad/s) needs a larger acceleration density than
-#: :class:`~uavcal_jax.track.filter.FilterConfig`'s 1.0 (a walker's): on a simulated V1_02
-#: flight (20 s, the car 6-10 m away) the filtered median error was 0.64 m with 1.0 (48 of 401
-#: measurements gated out), 0.47 with 4, 0.42 with 10 (none gated). Faster cars and racing
-#: drones' views need more: over 14 simulated flights (the list in README.md) 50 lowered
-#: every flight's filtered RMSE or kept it, the mean from 0.63 to 0.54 m (indoor_forward_6
-#: 1.02 to 0.56 m, V2_03 0.85 to 0.58 m, indoor_forward_10's median 0.51 to 0.45 m), where
-#: 10 gated out good boxes after a turn; 25 gave 0.59 m, 100 0.57 m (indoor_forward_6 back to
-#: 1.05 m), 200 0.59 m. Such a velocity is too
-#: lively to fly on for long once the car has left the image, the more so as the last boxes
-#: before it leaves are cut by the border and their localisations drift by 1-2 m: the
-#: prediction moves for 0.25 s, then holds, and a target unseen for 0.6 s is lost (the
-#: default 2 s: a car out of view drives up to 6 m/s); the follower holds its last
-#: prediction, and the next measurement starts the filter afresh. Over 13 simulated flights
-#: (five EuRoC and four UZH-FPV trajectories new to these settings) the mean filtered RMSE
-#: was 0.84 m with 0.5 s and 1.0 s, 0.74 m with 0.25 s and 0.6 s (V2_03 1.52 to 0.85 m,
-#: V1_02 0.98 to 0.91 m, a forward UZH-FPV flight 1.03 to 0.76 m); no median rose by more
-#: than 0.02 m. Holding at once (0 s) raised the medians (V1_03 0.27 to 0.41 m).
-#: The followed classes (car, person) move on the ground: no vertical velocity, the height a
-#: random walk of 1 m^2/s that follows the measured heights
+#: The run's filter: a car that drives, turns and stops (the simulator's accelerates up to 4 m/s^2,
+#: turns at up to 1.2 rad/s) needs a larger acceleration density than
+#: :class:`~uavcal_jax.track.filter.FilterConfig`'s 1.0 (a walker's): on a simulated V1_02 flight
+#: (20 s, the car 6-10 m away) the filtered median error was 0.64 m with 1.0 (48 of 401
+#: measurements gated out), 0.47 with 4, 0.42 with 10 (none gated). Faster cars and racing drones'
+#: views need more: over 14 simulated flights (the list in README.md) 50 lowered every flight's
+#: filtered RMSE or kept it, the mean from 0.63 to 0.54 m (indoor_forward_6 1.02 to 0.56 m, V2_03
+#: 0.85 to 0.58 m, indoor_forward_10's median 0.51 to 0.45 m), where 10 gated out good boxes after
+#: a turn; 25 gave 0.59 m, 100 0.57 m (indoor_forward_6 back to 1.05 m), 200 0.59 m. Such a
+#: velocity is too lively to fly on for long once the car has left the image, the more so as the
+#: last boxes before it leaves are cut by the border and their localisations drift by 1-2 m: the
+#: prediction moves for 0.25 s, then holds, and a target unseen for 0.6 s is lost (the default 2 s:
+#: a car out of view drives up to 6 m/s); the follower holds its last prediction, and the next
+#: measurement starts the filter afresh. Over 13 simulated flights (five EuRoC and four UZH-FPV
+#: trajectories new to these settings) the mean filtered RMSE was 0.84 m with 0.5 s and 1.0 s, 0.74
+#: m with 0.25 s and 0.6 s (V2_03 1.52 to 0.85 m, V1_02 0.98 to 0.91 m, a forward UZH-FPV flight
+#: 1.03 to 0.76 m); no median rose by more than 0.02 m. Holding at once (0 s) raised the medians
+#: (V1_03 0.27 to 0.41 m). The followed classes (car, person) move on the ground: no vertical
+#: velocity, the height a random walk of 1 m^2/s that follows the measured heights
 #: (:mod:`uavcal_jax.track.filter`). A cut box's height error no longer becomes a climb that the
 #: coasting prediction flies off with: on that V2_02 flight (the car seen from 8 m, shipped
 #: detector) the filtered median/RMSE went from 0.29/1.22 m to 0.26/0.80, on the demo from
-#: 0.21/0.56 to 0.20/0.55, on a low FLU flight along indoor_45_4 from 0.49/0.65 to 0.48/0.54;
-#: a stiff height (PSD 0.1 m^2/s^3 on a vertical velocity) cut the RMSE as much but raised
-#: the medians (0.35, 0.27): the measured height's error changes with the view, and a stiff
-#: height turns it into a range error along the slanted line of sight. For a flying target:
-#: ``--set filter.vertical_accel_psd=none filter.vertical_velocity_sigma=none
-#: filter.height_walk_psd=0``.
+#: 0.21/0.56 to 0.20/0.55, on a low FLU flight along indoor_45_4 from 0.49/0.65 to 0.48/0.54; a
+#: stiff height (PSD 0.1 m^2/s^3 on a vertical velocity) cut the RMSE as much but raised the
+#: medians (0.35, 0.27): the measured height's error changes with the view, and a stiff height
+#: turns it into a range error along the slanted line of sight. For a flying target: ``--set
+#: filter.vertical_accel_psd=none filter.vertical_velocity_sigma=none filter.height_walk_psd=0``.
 RUN_FILTER = FilterConfig(accel_psd=50.0, vertical_accel_psd=0.0, vertical_velocity_sigma=0.0,
                           height_walk_psd=1.0, coast_after=0.25, lost_after=0.6)
 #: The run's heading tracker: the detector's boxes are weaker evidence of a car's heading than

@@ -24,7 +24,7 @@ box, within ``stitch_gap`` detected frames after the chain's last one, overlaps 
 frame, is another target and is never taken. Where no box overlaps, the target has left the image
 or was hidden for longer, and a follower re-acquires it when it shows again (as the closed loop's
 chooser does): with ``reacquire`` the chain goes on with the next track of its class to appear (the
-longest of those starting first; backwards, of those ending last), if a caller's plausibility check
+longest of those starting first; backwards, of those ending last), if the caller's ``same`` check
 agrees (``uavcal run`` locates both boxes and asks that the target could have driven between them).
 It is off by default: on a simulated V2_03 flight the car, hidden 1 s behind a person, came back as
 a new track that the chain otherwise misses for the flight's last 6.4 s (filtered RMSE 0.66 m
@@ -241,7 +241,7 @@ def longest_track(track_ids: Sequence[np.ndarray], class_ids: Sequence[np.ndarra
 def followed_detections(track_ids: Sequence[np.ndarray], boxes: Sequence[np.ndarray],
                         class_ids: Sequence[np.ndarray], chosen: int,
                         config: AssociateConfig = AssociateConfig(),
-                        plausible: Callable[[int, int, int, int], bool] | None = None
+                        same: Callable[[int, int, int, int], bool] | None = None
                         ) -> np.ndarray:
     """Per frame, the index of the followed target's detection (``-1``: none): track
     ``chosen`` (e.g. :func:`longest_track`), continued forwards and backwards by other tracks
@@ -253,7 +253,7 @@ def followed_detections(track_ids: Sequence[np.ndarray], boxes: Sequence[np.ndar
         class_ids: per frame, (N_k,) their class ids.
         chosen: the track the chain starts from.
         config: :class:`AssociateConfig` (``stitch_gap``, ``stitch_iou``, ``reacquire``).
-        plausible: ``plausible(k_end, i_end, k, i)``: may detection ``i`` of frame ``k`` be
+        same: ``same(k_end, i_end, k, i)``: may detection ``i`` of frame ``k`` be
             the target whose last detection was ``i_end`` of frame ``k_end``? Asked before
             stitching and re-acquiring (``None``: yes).
 
@@ -291,20 +291,20 @@ def followed_detections(track_ids: Sequence[np.ndarray], boxes: Sequence[np.ndar
                 if not 0 <= k < T:
                     break
                 # a track boxed beside the chain's last box is another target
-                same = (classes[k] == class_id) & ~np.isin(ids[k], [*used, *ids[end]])
-                if not same.any():
+                candidate = (classes[k] == class_id) & ~np.isin(ids[k], [*used, *ids[end]])
+                if not candidate.any():
                     continue
-                iou = np.where(same, box_iou(ref, boxes[k])[0], 0.0)
+                iou = np.where(candidate, box_iou(ref, boxes[k])[0], 0.0)
                 for i in np.argsort(-iou, kind="stable"):
                     if iou[i] < config.stitch_iou:
                         break
-                    if plausible is None or plausible(end, int(pick[end]), k, int(i)):
+                    if same is None or same(end, int(pick[end]), k, int(i)):
                         found = (k, int(ids[k][i]))
                         break
                 if found is not None:
                     break
             if found is None and config.reacquire:
-                found = _next_track(ids, classes, class_id, used, end, step, plausible, pick)
+                found = _next_track(ids, classes, class_id, used, end, step, same, pick)
             if found is None:
                 break
             k, track = found
@@ -314,11 +314,11 @@ def followed_detections(track_ids: Sequence[np.ndarray], boxes: Sequence[np.ndar
     return pick
 
 
-def _next_track(ids, classes, class_id: int, used: set, end: int, step: int, plausible,
+def _next_track(ids, classes, class_id: int, used: set, end: int, step: int, same,
                 pick) -> tuple[int, int] | None:
     """The first track of class ``class_id`` (not in ``used``) to appear after frame ``end``
     going ``step`` (+1 forwards: its first frame is after ``end``; -1 backwards: its last is
-    before) that ``plausible`` accepts, the longest of those appearing together: ``(frame,
+    before) that ``same`` accepts, the longest of those appearing together: ``(frame,
     track)``, or ``None``. A track seen at ``end`` too is another target, never taken."""
     seen: dict[int, list[int]] = {}
     for k, (frame_ids, frame_classes) in enumerate(zip(ids, classes, strict=True)):
@@ -332,6 +332,6 @@ def _next_track(ids, classes, class_id: int, used: set, end: int, step: int, pla
     for k in sorted(starts, key=lambda f: (f - end) * step):
         for track in sorted(starts[k], key=lambda t: -len(seen[t])):
             i = int(np.flatnonzero(ids[k] == track)[0])
-            if plausible is None or plausible(end, int(pick[end]), k, i):
+            if same is None or same(end, int(pick[end]), k, i):
                 return k, track
     return None
