@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from _docs import add_write_docs  # the script's folder is first on sys.path
 
 from uavcal_jax.calib.config import CalibConfig, LoopConfig, TrainConfig
 from uavcal_jax.calib.presets import budget_stride, resolve_configs
@@ -66,6 +67,7 @@ def add_common_arguments(ap: argparse.ArgumentParser, out_default: Path) -> None
                     help="more `uavcal calib train --set` fields (window.*, loop.* included), "
                          "applied after the mode's preset, e.g. window.frame_step=4")
     ap.add_argument("--quiet", action="store_true", help="no progress bars or log lines")
+    add_write_docs(ap)
 
 
 def names_list(text: str) -> tuple[str, ...]:

@@ -102,6 +102,11 @@ from _bench import (  # the script's folder is first on sys.path
     time_once,
 )
 from _bench_motion import bench_front_end, bench_motion_model
+from _docs import (  # the script's folder is first on sys.path
+    add_write_docs,
+    figures_table,
+    write_docs,
+)
 
 from uavcal_jax import allocator
 from uavcal_jax.argtypes import positive_int, print_json
@@ -514,6 +519,7 @@ def main(argv=None) -> int:
                     help="skip the motion tokens' cost (front end and model)")
     ap.add_argument("--json-only", action="store_true",
                     help="print only the JSON line (no progress, no table)")
+    add_write_docs(ap)
     args = ap.parse_args(argv)
     args.keep_freed_memory = allocator.keep_freed_memory()  # as the uavcal command runs
 
@@ -566,6 +572,12 @@ def main(argv=None) -> int:
     })
     if not args.json_only:
         print_table(presets, seeds)
+    write_docs(args, "bench_calibrator", figures_table(summary, (
+        "preset", "params", "train_step_s", "window_ms", "window_bf16_ms", "motion_window_ms",
+        "sequence_speedup", "peer_step_over_ours", "peer_window_over_ours",
+        "peer_same_allocator_step_over_ours", "seeds_per_seed_ratio", "peak_rss_mib")),
+               argv=argv,
+               anchor="the PyTorch peer in the same run (peer_*_over_ours: its time over ours)")
     print_json(summary)
     return 0
 

@@ -61,7 +61,9 @@ import sys
 import jax
 import jax.numpy as jnp
 from _bench import time_calls, time_compile  # the script's folder is first on sys.path
+from _docs import add_write_docs, write_docs
 
+from uavcal_jax.data.results_doc import markdown_table
 from uavcal_jax.detect.config import (
     DW_IMPLS,
     EVAL_PREDICT,
@@ -153,6 +155,7 @@ def main(argv=None) -> int:
     p.add_argument("--variables", help="trained variables (.msgpack) for the first model")
     p.add_argument("--dw-sweep", action="store_true")
     p.add_argument("--seed", type=int, default=0)
+    add_write_docs(p)
     args = p.parse_args(argv)
 
     summary: dict = {
@@ -196,6 +199,11 @@ def main(argv=None) -> int:
     for model, r in results.items():
         key = model.replace("-", "_")
         summary[key] = {k: v for k, v in r.items() if k != "model"}
+    write_docs(args, "bench_detector", markdown_table(
+        ("model", "params", "GFLOPs", "ms per frame (median)", "frames/s"),
+        [(m, f"{r['params']:,}", f"{r['gflops']:.2f}", f"{r['ms_median']:.2f}", f"{r['fps']:.1f}")
+         for m, r in results.items()]), argv=argv,
+        anchor=f"{args.w}x{args.h}, batch 1, NMS included; the models against each other")
     print(json.dumps(summary))
     return 0
 

@@ -54,6 +54,7 @@ from pathlib import Path
 import jax
 import numpy as np
 from _bench import median, time_calls, time_compile  # the script's folder is first on sys.path
+from _docs import add_write_docs, figures_table, write_docs
 
 from uavcal_jax.argtypes import print_json
 from uavcal_jax.geometry.frames import GRAVITY, GRAVITY_W
@@ -163,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scheme", choices=("tangent", "manifold"), default="tangent")
     p.add_argument("--no-float32", action="store_true", help="skip the float32 run")
     p.add_argument("--no-gtsam", action="store_true", help="skip GTSAM (no ratio)")
+    add_write_docs(p)
     args = p.parse_args(argv)
     n_devices = use_cpu_devices(args.devices)
     all_devices = jax.devices()[:args.devices]
@@ -230,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
               f"({result['gtsam_samples_per_s'] / 1e6:.2f} M samples/s); ratio "
               f"{result['ratio']:.1f}x ({result['ratio_1dev']:.1f}x on one device)",
               file=sys.stderr)
+    write_docs(args, "bench_preintegration", figures_table(result), argv=argv,
+               anchor="GTSAM's PreintegratedImuMeasurements driven from Python, same run")
     print_json(result)
     return 0
 

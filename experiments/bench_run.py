@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 from _bench import median  # the script's folder is first on sys.path
+from _docs import add_write_docs, figures_table, write_docs
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.data.read import read_sequence
@@ -88,6 +89,7 @@ def main() -> None:
     ap.add_argument("--passes", type=positive_int, default=3,
                     help="passes of each; the first compiles [default: 3]")
     ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "bench_cache")
+    add_write_docs(ap)
     args = ap.parse_args()
     recording = args.sequence or cached_simulation(BENCH_FLIGHT, args.cache, "bench_run")
     config = RunConfig()
@@ -127,6 +129,9 @@ def main() -> None:
         out["pipeline_over_vio_alone"] = out["pipeline_wall_ms"] / out["vio_alone_wall_ms"]
         print(f"whole pipeline {out['pipeline_wall_ms']:.1f} ms per stereo frame (budget 50), "
               f"VIO alone {out['vio_alone_wall_ms']:.1f} ms")
+    write_docs(args, "bench_run", figures_table(
+        {**out, **{f"stage {k} (ms)": v for k, v in (out["stages_ms"] or {}).items()}}),
+        anchor="`uavcal vio` alone on the same flight, same run; EuRoC's 50 ms frame budget")
     print_json(out)
 
 

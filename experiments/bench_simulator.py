@@ -39,6 +39,11 @@ import tempfile
 from pathlib import Path
 
 import jax
+from _docs import (  # the script's folder is first on sys.path
+    add_write_docs,
+    figures_table,
+    write_docs,
+)
 
 from uavcal_jax.argtypes import parse_resolution, print_json
 from uavcal_jax.sim.config import COLORS, SimConfig
@@ -64,6 +69,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="sub-exposures averaged for motion blur")
     p.add_argument("--keep", type=Path, metavar="DIR", help="keep the output in DIR")
     p.add_argument("--no-progress", action="store_true")
+    add_write_docs(p)
     args = p.parse_args(argv)
 
     config = SimConfig(duration=args.duration, resolution=args.resolution, color=args.color,
@@ -120,6 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     for k, v in t.items():
         print(f"  {k:>16}: {v:8.2f} s", file=sys.stderr)
     result["within_budget"] = bool(result["seconds_for_60s_estimated"] <= BUDGET_S)
+    write_docs(args, "bench_simulator", figures_table(result), argv=argv,
+               anchor=f"the budget of {BUDGET_S:g} s for 60 s of data")
     print_json(result)
     return 0
 

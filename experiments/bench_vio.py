@@ -37,9 +37,11 @@ import warnings
 from pathlib import Path
 
 from _bench import stats  # the script's folder is first on sys.path
+from _docs import add_write_docs, write_docs
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.data.results_doc import markdown_table
 from uavcal_jax.vio.config import VioConfig
 from uavcal_jax.vio.estimator import StereoVio
 from uavcal_jax.vio.run import estimate_stream, one_blas_thread, stereo_pairs
@@ -58,6 +60,7 @@ def main() -> None:
     ap.add_argument("--max-frames", type=positive_int, default=None)
     ap.add_argument("--no-pipelined", action="store_true",
                     help="skip the pipelined passes (front end in a worker thread)")
+    add_write_docs(ap)
     args = ap.parse_args()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -121,6 +124,11 @@ def main() -> None:
         print(f"pipelined (front end one frame ahead in a thread): mean "
               f"{out['pipelined_wall_ms']['mean']:.1f} ms, p95 "
               f"{out['pipelined_wall_ms']['p95']:.1f} ms wall-clock per frame")
+    write_docs(args, "bench_vio", markdown_table(
+        ("ms per stereo frame", "mean", "median", "p95"),
+        [(k.removesuffix("_ms"), *(f"{v[s]:.1f}" for s in ("mean", "median", "p95")))
+         for k, v in out.items() if k.endswith("_ms") and isinstance(v, dict)]),
+        anchor="RPEOD on an NVIDIA Jetson Xavier NX: 46.5 ms per frame (mean of its Table 2)")
     print_json(out)
 
 

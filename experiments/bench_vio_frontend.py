@@ -54,9 +54,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 from _bench import stats  # the script's folder is first on sys.path
+from _docs import add_write_docs, write_docs
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.data.results_doc import markdown_table
 from uavcal_jax.vio.config import EQUALIZERS, FrontendConfig
 from uavcal_jax.vio.frontend import FeatureTracker
 
@@ -117,6 +119,7 @@ def main(argv=None) -> int:
     ap.add_argument("--redetect-below", type=int, default=FrontendConfig().redetect_below,
                     help="detect new corners below this many tracks (150: every frame that "
                          "lost one, as VINS-Fusion)")
+    add_write_docs(ap)
     args = ap.parse_args(argv)
     if not args.data.exists():
         print(f"no EuRoC data at {args.data}", file=sys.stderr)
@@ -143,6 +146,12 @@ def main(argv=None) -> int:
     print(f"  corners tracked {result['tracked_per_frame']:.1f}, stereo "
           f"{result['stereo_per_frame']:.1f} per frame; detection in "
           f"{result['frames_detected']} frames; {wall:.1f} s in all")
+    prefix = {stage: "" if stage == "total" else f"{stage}_" for stage in STAGES}
+    write_docs(args, "bench_vio_frontend", markdown_table(
+        ("ms per stereo frame", "median", "p95"),
+        [(stage, *(f"{result[f'{prefix[stage]}{s}_ms']:.2f}" for s in ("median", "p95")))
+         for stage in STAGES]), argv=argv,
+        anchor="the whole VIO's time per frame (bench_vio)")
     print_json({**result, "threads": args.threads, "equalize": args.equalize,
                 "width": int(frames[0][1].shape[1]), "height": int(frames[0][1].shape[0]),
                 "opencv": cv2.__version__, "cpu_count": os.cpu_count(),

@@ -32,6 +32,7 @@ import functools
 import jax
 import numpy as np
 from _bench import time_calls, time_once  # the script's folder is first on sys.path
+from _docs import add_write_docs, figures_table, write_docs
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.vio import (
@@ -55,6 +56,7 @@ def main(argv=None) -> dict:
                     help="timed repeats of the structured step (jaxopt: a fifth, at least 2)")
     ap.add_argument("--lm", action="store_true", help="also time jaxopt.LevenbergMarquardt")
     ap.add_argument("--seed", type=int, default=0)
+    add_write_docs(ap)
     args = ap.parse_args(argv)
 
     with jax.enable_x64(True):
@@ -104,6 +106,8 @@ def main(argv=None) -> dict:
             np.abs(np.asarray(x.frames.position - xg.frames.position)).max())
     for k, v in out.items():
         print(f"{k:36s} {v:.4g}" if isinstance(v, float) else f"{k:36s} {v}")
+    write_docs(args, "bench_vio_solver", figures_table(out), argv=argv,
+               anchor="jaxopt.GaussNewton on the same window, in the same run")
     print_json({k: (float(f"{v:.6g}") if isinstance(v, float) else v) for k, v in out.items()})
     return out
 

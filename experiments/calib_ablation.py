@@ -92,6 +92,7 @@ from _calib_common import (  # the script's folder is first on sys.path
     render,
     resolve,
 )
+from _docs import write_docs  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.calib.config import PROTOCOLS
@@ -330,6 +331,8 @@ def main() -> None:
                 "max_epochs": base.train.epochs, "describe": describe(base, base_window, T)}
     table = _table(tables, base_dict, settings, rec_budget, schedule, args)
     (args.out / "table.md").write_text(table)
+    write_docs(args, "calib_ablation", table,
+               anchor="Avola et al. 2023, Tables 1 and 5 (UZH-FPV 80/20)")
     (args.out / "results.json").write_text(json.dumps(
         {"script": "experiments/calib_ablation.py", "argv": sys.argv[1:], **rec_budget,
          "data_s": round(t_data, 1), "settings": settings, "schedule": schedule,

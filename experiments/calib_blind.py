@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 from _calib_common import ROOT, SHARED_DATA  # the script's folder is first on sys.path
+from _docs import add_write_docs, write_docs  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import parse_vector3
 from uavcal_jax.calib.config import InjectionConfig
@@ -167,6 +168,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "calib_cache")
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "out" / "calib_blind")
     ap.add_argument("--quiet", action="store_true")
+    add_write_docs(ap)
     args = ap.parse_args()
     methods = args.methods or list(method_names())
     args.out.mkdir(parents=True, exist_ok=True)
@@ -186,6 +188,7 @@ def main() -> None:
                            for k, v in vars(args).items()}}
     (args.out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     print(table)
+    write_docs(args, "calib_blind", table, anchor="no correction (the raw IMU's offset error)")
     print(json.dumps({"pooled": pooled, "hybrid": hybrid_rows}))
 
 

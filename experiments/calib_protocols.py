@@ -102,6 +102,7 @@ from _calib_common import (  # the script's folder is first on sys.path
     render,
     resolve,
 )
+from _docs import write_docs  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.calib.config import PROTOCOLS
@@ -460,6 +461,8 @@ def main() -> None:
     settings = _settings(jobs, window, args, n_trials, trial_counts)
     table = _table(agg, trials, settings, rec_budget, schedule, skipped, args)
     (args.out / "table.md").write_text(table)
+    write_docs(args, "calib_protocols", table,
+               anchor="Avola et al. 2023, Table 4 (real data, the paper column)")
     out_json = {
         "script": "experiments/calib_protocols.py", "argv": sys.argv[1:], **rec_budget,
         "data_s": round(t_data, 1), "eval_s": round(eval_s, 1), "settings": settings,

@@ -49,6 +49,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 from _bench import time_calls, time_once  # the script's folder is first on sys.path
+from _docs import add_write_docs, write_docs
 
 from uavcal_jax.argtypes import parse_imgsz, print_json
 from uavcal_jax.config import to_dict
@@ -171,6 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-autoanchor", action="store_true",
                    help="keep YOLOv5's default anchors (default: check them against the "
                         "labels and replace them by k-means anchors when recall < 0.98)")
+    add_write_docs(p)
     args = p.parse_args(argv)
 
     out = Path(args.out)
@@ -233,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     (out / "results.json").write_text(json.dumps(result, indent=1))
     print(markdown_table(rows, budget), file=sys.stderr)
+    write_docs(args, "detect_aerial", markdown_table(rows, budget), argv=argv,
+               anchor="RPEOD Table 3 (YZNet-YOLO against YOLOv5 on aerial cars)")
     print_json(result)
     return 0
 

@@ -48,6 +48,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _docs import (  # the script's folder is first on sys.path
+    add_write_docs,
+    figures_table,
+    write_docs,
+)
 
 from uavcal_jax.argtypes import positive, positive_int, print_json
 from uavcal_jax.config import apply_overrides
@@ -172,6 +177,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=DEFAULT_DETECTOR_RUN,
                     help="where the shipped run goes [default: %(default)s]")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_write_docs(ap)
     args = ap.parse_args()
     t0 = time.perf_counter()
     enable_compilation_cache()
@@ -227,6 +233,8 @@ def main() -> None:
         "simulate_s": round(t_sim, 1), "train_s": round(t_train, 1),
         "wall_s": round(time.perf_counter() - t0, 1), "out": str(target),
     }
+    write_docs(args, "detector_default_weights", figures_table(summary),
+               anchor=f"the held-out flight {test_name}, never trained on")
     print_json(summary)
 
 

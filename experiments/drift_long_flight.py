@@ -48,6 +48,8 @@ import json
 import time
 from pathlib import Path
 
+from _docs import add_write_docs, write_docs  # the script's folder is first on sys.path
+
 from uavcal_jax.argtypes import parse_resolution, positive, print_json, to_builtin
 from uavcal_jax.pipeline.drift import (
     FLIGHT_KINDS,
@@ -135,6 +137,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true",
                     help="a smoke run: a 60 m line at 5 m/s and a 20 s loop")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_write_docs(ap)
     args = ap.parse_args(argv)
     if args.quick:
         for key, value in QUICK.items():
@@ -170,6 +173,8 @@ def main(argv=None) -> dict:
     js = args.out / "drift.json"
     js.write_text(json.dumps(json.loads(json.dumps(summary, default=to_builtin)), indent=1))
     print(text)
+    write_docs(args, "drift_long_flight", text, argv=argv,
+               anchor="the raw IMU and the true offset removed, in the same run")
     wall = time.perf_counter() - t0
     brief = {flight: {name: {"vio_final_m": row["vio"]["final_error_m"],
                              "vio_ate_m": row["vio"]["ate_m"],

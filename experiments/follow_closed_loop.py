@@ -45,6 +45,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from _docs import add_write_docs, write_docs  # noqa: E402 (the script's folder is first on sys.path)
 
 from uavcal_jax.argtypes import parse_resolution, positive, print_json, to_builtin  # noqa: E402
 from uavcal_jax.config import ConfigError, apply_overrides  # noqa: E402
@@ -156,6 +157,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="uavcal run's settings (RunConfig), e.g. follow.distance=5")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_write_docs(ap)
     args = ap.parse_args(argv)
     try:
         run_cfg = apply_overrides(RunConfig(), args.set)
@@ -197,6 +199,9 @@ def main(argv=None) -> dict:
     print(f"detector: {name}; duration {args.duration:g} s; "
           f"{args.resolution[0]}x{args.resolution[1]}\n")
     print(text)
+    write_docs(args, "follow_closed_loop", f"Detector: {name}; {args.duration:g} s; "
+               f"{args.resolution[0]}x{args.resolution[1]}.\n\n{text}", argv=argv,
+               anchor="the true pose (`--pose truth`) and the follow law's set-point")
     out = {"detector": name, "duration_s": args.duration, "png": str(png),
            "json": str(args.out / "follow_closed_loop.json"),
            "wall_s": round(time.perf_counter() - t0, 1),

@@ -55,6 +55,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from _docs import add_write_docs, write_docs  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import print_json
 from uavcal_jax.data.euroc import read_euroc
@@ -220,6 +221,7 @@ def main() -> None:
                          "by `uavcal simulate`) instead of simulating --trajectories")
     ap.add_argument("--no-micro", action="store_true", help="skip the real micro slice")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_write_docs(ap)
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     published = json.loads(args.published.read_text()) if args.published else {}
@@ -262,6 +264,8 @@ def main() -> None:
     }
     (args.out / "vio_euroc.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(table)
+    write_docs(args, "vio_euroc", table, anchor="RPEOD's Table 2 (real EuRoC, its published "
+               "columns with --published)")
     print_json(summary)
 
 

@@ -31,6 +31,7 @@ import sys
 import time
 
 import numpy as np
+from _docs import add_write_docs, write_docs  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import positive, positive_int, print_json
 from uavcal_jax.vio.selfcalib import (
@@ -92,22 +93,24 @@ def main(argv=None) -> dict:
     ap.add_argument("--keyframe-dt", type=positive, default=0.15)
     ap.add_argument("--large", action="store_true",
                     help="a larger problem than the few-minute default: 8 windows of 300 landmarks")
+    add_write_docs(ap)
     args = ap.parse_args(argv)
 
     windows = args.windows or (8 if args.large else 4)
     landmarks = args.landmarks or (300 if args.large else 120)
     offset = np.array(args.gyro + args.accel)
     t = time.perf_counter()
-    runs = []
+    runs, tables = [], []
     for seed in range(args.seeds):
         cfg = SelfCalibConfig(windows=windows, seed=seed, n_frames=args.frames,
                               n_landmarks=landmarks, keyframe_dt=args.keyframe_dt,
                               descent=DescentConfig(steps=args.steps, method=args.method,
                                                     lr=args.lr))
         res = recover_offset(offset, cfg, log=lambda s: print(s, file=sys.stderr))
-        print(f"\n### seed {seed}: {windows} windows x {args.frames} keyframes x {landmarks} "
-              f"landmarks, {args.method}, {args.steps} steps, {res['wall_s']:.0f} s\n")
-        print(markdown_table(res))
+        tables.append(f"Seed {seed}: {windows} windows x {args.frames} keyframes x {landmarks} "
+                      f"landmarks, {args.method}, {args.steps} steps, {res['wall_s']:.0f} s\n\n"
+                      + markdown_table(res))
+        print(f"\n### {tables[-1]}")
         runs.append(res)
     wall_s = time.perf_counter() - t
 
@@ -123,6 +126,8 @@ def main(argv=None) -> dict:
         "loss_decreased": bool(all(r["loss"][-1] < r["loss"][0] for r in runs)),
         "wall_s": round(wall_s, 1),
     }
+    write_docs(args, "vio_selfcalib", "\n\n".join(tables),
+               anchor="the injected offset (abs err before)", argv=argv)
     print()
     print_json(out)
     return out
