@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from uavcal_jax.data.results_doc import markdown_table, write_results_section
+from uavcal_jax.data.results_doc import markdown_table, section_markers, write_results_section
 
 __all__ = ["RESULTS_DOC", "add_write_docs", "cpu_name", "figures_table", "write_docs"]
 
@@ -27,8 +27,18 @@ def add_write_docs(ap: argparse.ArgumentParser) -> None:
     """Add ``--write-docs [VARIANT]`` to an experiment's parser (``args.write_docs``: ``None``
     without the flag, ``""`` or the variant's name with it)."""
     ap.add_argument("--write-docs", nargs="?", const="", default=None, metavar="VARIANT",
+                    type=_variant,
                     help=f"also write the table into this script's section of {RESULTS_DOC} "
                          "(section NAME.VARIANT with VARIANT: one section per setting kept)")
+
+
+def _variant(text: str) -> str:
+    try:
+        section_markers(f"name.{text}")
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: a variant is letters, digits, '_', '.' and '-'") from None
+    return text
 
 
 def cpu_name() -> str:

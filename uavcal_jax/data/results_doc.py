@@ -19,7 +19,7 @@ from pathlib import Path
 
 from uavcal_jax.errors import DataError
 
-__all__ = ["markdown_table", "write_results_section"]
+__all__ = ["markdown_table", "section_markers", "write_results_section"]
 
 _NAME = re.compile(r"[A-Za-z0-9_.-]+")
 
@@ -35,7 +35,9 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> s
     return "\n".join(lines)
 
 
-def _markers(name: str) -> tuple[str, str]:
+def section_markers(name: str) -> tuple[str, str]:
+    """``(begin, end)`` markers of section ``name``; ``ValueError`` unless ``name`` is letters,
+    digits, ``_``, ``.`` and ``-``."""
     if not _NAME.fullmatch(name):
         raise ValueError(f"section name {name!r}: letters, digits, '_', '.', '-' only")
     return f"<!-- begin {name} -->", f"<!-- end {name} -->"
@@ -56,7 +58,7 @@ def write_results_section(name: str, markdown: str, path: str | Path) -> Path:
         ValueError: ``name`` is not a plain name, or ``markdown`` contains the markers.
     """
     path = Path(path)
-    begin, end = _markers(name)
+    begin, end = section_markers(name)
     if begin in markdown or end in markdown:
         raise ValueError(f"the markdown of section {name!r} contains its own markers")
     text = path.read_text(encoding="utf-8") if path.exists() else ""
