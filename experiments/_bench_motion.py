@@ -30,20 +30,20 @@ from uavcal_jax.calib import inference
 from uavcal_jax.calib.config import CalibConfig
 from uavcal_jax.calib.train import create_train_state
 from uavcal_jax.data.euroc import read_euroc
+from uavcal_jax.data.euroc_rig import EUROC_IMU_RATE_HZ, EUROC_RATE_HZ
 from uavcal_jax.vio.visual_rotation import timed_relative_rotations
 
 #: Samples per frame interval in the synthetic motion inputs (10 real, then padding).
 INTERVAL_CAP = 12
-IMU_HZ, CAMERA_HZ = 200.0, 20.0
 
 
 def synthetic_motion(rng: np.random.Generator, lead: tuple[int, ...]) -> dict:
     """Motion inputs ``lead + (T, ...)`` (``lead`` ends with ``T``): gyro ``(..., S, 3)``
     rad/s, ``dt (..., S)`` s (10 samples of 5 ms, then padding), small camera rotations, the
     first slot of each window invalid."""
-    per = int(round(IMU_HZ / CAMERA_HZ))
+    per = int(round(EUROC_IMU_RATE_HZ / EUROC_RATE_HZ))
     dt = np.zeros(lead + (INTERVAL_CAP,), np.float32)
-    dt[..., :per] = 1.0 / IMU_HZ
+    dt[..., :per] = 1.0 / EUROC_IMU_RATE_HZ
     rot = Rotation.from_rotvec(rng.normal(0.0, 0.02, (int(np.prod(lead)), 3)))
     mask = np.ones(lead, bool)
     mask[..., 0] = False
@@ -60,7 +60,7 @@ def bench_front_end(recording: Path, sequence_s: float) -> dict:
     seq = read_euroc(recording)
     timed_relative_rotations(seq)  # warm-up: OpenCV's first calls, the page cache
     rotations, per_frame_s = timed_relative_rotations(seq)
-    frames = int(round(sequence_s * CAMERA_HZ))
+    frames = int(round(sequence_s * EUROC_RATE_HZ))
     return {"recording": recording.name, "frames": len(seq.camera("cam0")),
             "pairs": int(rotations.t0_ns.size), "ms_per_frame": round(1e3 * per_frame_s, 2),
             "sequence_s": sequence_s, "sequence_frames": frames,

@@ -121,6 +121,7 @@ from uavcal_jax.calib.train import (
 )
 from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.windows import WindowConfig
+from uavcal_jax.geometry.frames import GRAVITY_W
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_PEER_PYTHON = REPO.parent / "peer-venv" / "bin" / "python"
@@ -149,7 +150,7 @@ def preset_config(batch: int, d_model: int) -> CalibConfig:
 def synthetic_imu(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
     """IMU samples ``shape + (6,)`` float32: gyro rad/s about 0, accel m/s^2 about gravity."""
     gyro = rng.normal(0.0, 0.3, shape + (3,))
-    accel = rng.normal(0.0, 0.5, shape + (3,)) + np.array([0.0, 0.0, 9.81])
+    accel = rng.normal(0.0, 0.5, shape + (3,)) - np.asarray(GRAVITY_W)
     return np.concatenate([gyro, accel], axis=-1).astype(np.float32)
 
 

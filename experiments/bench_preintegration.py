@@ -57,6 +57,7 @@ from _bench import median, time_calls, time_compile  # the script's folder is fi
 from _docs import add_write_docs, figures_table, write_docs
 
 from uavcal_jax.argtypes import print_json
+from uavcal_jax.data.euroc_rig import EUROC_IMU_RATE_HZ
 from uavcal_jax.geometry.frames import GRAVITY, GRAVITY_W
 from uavcal_jax.imu import EUROC_ADIS16448, interval_batch, preintegrate
 from uavcal_jax.parallel import over_devices, shard_batch, use_cpu_devices
@@ -81,8 +82,9 @@ def load_windows(n_windows: int, n_samples: int, seed: int = 0):
         return (batch.dt, batch.gyro, batch.accel, gt.bias_gyro[gidx], gt.bias_accel[gidx],
                 noise, "EuRoC V1_01 IMU (real)")
     rng = np.random.default_rng(seed)
-    dt = np.full((n_windows, n_samples), 1.0 / 200.0)
-    t = np.arange(n_samples) * 0.005
+    period = 1.0 / EUROC_IMU_RATE_HZ
+    dt = np.full((n_windows, n_samples), period)
+    t = np.arange(n_samples) * period
     phase = rng.uniform(0, 6, (n_windows, 1, 1))
     gyro = 0.5 * np.sin(2.0 * t[None, :, None] + phase) + rng.normal(0, 0.01, (n_windows,
                                                                                n_samples, 3))

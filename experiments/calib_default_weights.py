@@ -2,7 +2,7 @@
 predict --method transformer`` without ``--checkpoint``).
 
 Recipe: ``--flights`` seeded procedural flights of ``--duration`` s at the demo's resolution
-(:data:`uavcal_jax.sim.training_sets.RENDER_RESOLUTION`), rendered once into ``--cache``
+(:data:`uavcal_jax.sim.config.LOW_RESOLUTION`), rendered once into ``--cache``
 (:mod:`uavcal_jax.sim.training_sets`); trained on them (what ``uavcal calib train`` runs) with
 the ``shipped`` preset (:data:`uavcal_jax.calib.presets.PRESETS`: ``small``'s 160x96 frames in
 32x32 patches, d 64, pre-norm, AdamW 1e-3, with the physical injection protocol -- offsets in
@@ -37,7 +37,8 @@ from uavcal_jax.calib.loop import export_weights, fit
 from uavcal_jax.calib.presets import PRESETS, resolve_configs
 from uavcal_jax.calib.pretrained import DEFAULT_WEIGHTS
 from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
-from uavcal_jax.sim.training_sets import RENDER_RESOLUTION, SimSetConfig, simulated_set
+from uavcal_jax.sim.config import LOW_RESOLUTION
+from uavcal_jax.sim.training_sets import SimSetConfig, simulated_set
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The shipped model's preset (``uavcal calib train --preset shipped``).
@@ -70,7 +71,7 @@ def main() -> None:
     t0 = time.perf_counter()
     folders = simulated_set(SimSetConfig(family="procedural", count=args.flights,
                                          max_duration=args.duration,
-                                         resolution=RENDER_RESOLUTION, seed=FLIGHT_SEED),
+                                         resolution=LOW_RESOLUTION, seed=FLIGHT_SEED),
                             args.cache, progress=not args.quiet)
     t_sim = time.perf_counter() - t0
     run = resolve_configs(args.set, preset=PRESET, epochs=args.epochs)

@@ -54,15 +54,13 @@ from _docs import add_write_docs, write_docs
 from uavcal_jax.argtypes import parse_imgsz, print_json
 from uavcal_jax.config import to_dict
 from uavcal_jax.data.detection_labels import LABEL_FORMATS
-from uavcal_jax.detect.augment import AugmentConfig
 from uavcal_jax.detect.config import (
     MODELS,
-    OPTIMIZERS,
     SERVE_PREDICT,
     DetectorConfig,
-    TrainConfig,
 )
 from uavcal_jax.detect.datasets import load_dataset
+from uavcal_jax.detect.options import TRAIN_FLAGS, add_train_options, train_options
 from uavcal_jax.detect.predict import make_predict_fn
 from uavcal_jax.detect.run import RunPaths, load_run
 from uavcal_jax.detect.train import train
@@ -73,6 +71,12 @@ DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / 
 
 #: Table 3 order: the paper's two models, then the baseline.
 TABLE_ORDER = ("yznet-yolo-tiny", "yznet-yolo", "yolov5n-like")
+#: The training options this study takes (those of ``uavcal detect train``) and its small
+#: shared budget: 8 epochs, and a warmup shorter than a full run's.
+FLAGS = tuple(f for f in TRAIN_FLAGS if f.key in (
+    "train.epochs", "detector.img_size", "train.batch_size", "train.warmup_epochs",
+    "train.augment.mosaic", "train.eval_every", "train.seed", "train.autoanchor"))
+BUDGET = {"train.epochs": 8, "train.warmup_epochs": 1.0}
 
 
 def measure_fps(det_cfg: DetectorConfig, variables, runs: int = 20, seed: int = 0) -> dict:
@@ -147,49 +151,30 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--format", choices=LABEL_FORMATS, default=None, help="[default: detected]")
     p.add_argument("--out", default="out/detect_aerial", help="[default: out/detect_aerial]")
     p.add_argument("--models", nargs="+", choices=MODELS, default=list(TABLE_ORDER))
-    p.add_argument("--epochs", type=int, default=8, help="the shared budget [default: 8]")
     p.add_argument("--max-steps", type=int, default=None,
                    help="cap batches per epoch (smoke tests)")
-    h, w = DetectorConfig.img_size
-    p.add_argument("--imgsz", type=parse_imgsz, default=DetectorConfig.img_size,
-                   metavar="S|WxH", help=f"[default: {w}x{h}, the paper's]")
-    p.add_argument("--batch", type=int, default=TrainConfig.batch_size,
-                   help="[default: %(default)s, the paper's]")
-    p.add_argument("--optimizer", choices=OPTIMIZERS, default=TrainConfig.optimizer,
-                   help="rmsprop: the paper's recipe; sgd: YOLOv5's [default: %(default)s]")
-    p.add_argument("--warmup-epochs", type=float, default=1.0,
-                   help="shorter than a full run's, for the small budget [default: 1]")
-    p.add_argument("--mosaic", type=float, default=AugmentConfig.mosaic,
-                   help="[default: %(default)s]")
-    p.add_argument("--eval-every", type=int, default=TrainConfig.eval_every,
-                   help="[default: %(default)s]")
-    p.add_argument("--seed", type=int, default=TrainConfig.seed)
+    add_train_options(p, FLAGS, BUDGET)
     p.add_argument("--fps-runs", type=int, default=20, help="timed predictions [default: 20]")
+    h, w = DetectorConfig().img_size
     p.add_argument("--fps-imgsz", type=parse_imgsz, default=DetectorConfig.img_size,
                    metavar="S|WxH", help="input size of the speed column (the networks are "
                    f"fully convolutional) [default: {w}x{h}, the paper's]")
     p.add_argument("--resume", action="store_true", help="continue existing runs in OUT")
-    p.add_argument("--no-autoanchor", action="store_true",
-                   help="keep YOLOv5's default anchors (default: check them against the "
-                        "labels and replace them by k-means anchors when recall < 0.98)")
     add_write_docs(p)
     args = p.parse_args(argv)
+    config = train_options(args, FLAGS, BUDGET)
+    cfg, imgsz = config.train, config.detector.img_size
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     dataset = load_dataset(args.data, args.format)
-    common = dict(epochs=args.epochs, batch_size=args.batch, seed=args.seed,
-                  warmup_epochs=args.warmup_epochs, eval_every=args.eval_every,
-                  augment=AugmentConfig(mosaic=args.mosaic), autoanchor=not args.no_autoanchor)
-    cfg = TrainConfig.yolov5(**common) if args.optimizer == "sgd" else TrainConfig.paper(
-        **common)
     rows = []
     for model in args.models:
         det_cfg = DetectorConfig(model=model, num_classes=dataset.num_classes,
-                                 img_size=args.imgsz)
+                                 img_size=imgsz)
         run = out / "runs" / model
-        print(f"== {model}: {args.epochs} epochs -> {run}", file=sys.stderr, flush=True)
+        print(f"== {model}: {cfg.epochs} epochs -> {run}", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         resume = args.resume and (run / "config.json").is_file()
         summary = train(dataset, det_cfg, cfg, run, resume=resume,
@@ -199,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
         train_s = time.perf_counter() - t0
         loaded = load_run(run)
         fps_cfg = dataclasses.replace(loaded.det_cfg, img_size=args.fps_imgsz)
-        fps = measure_fps(fps_cfg, loaded.variables, args.fps_runs, args.seed)
+        fps = measure_fps(fps_cfg, loaded.variables, args.fps_runs, cfg.seed)
         history = json.loads((run / "metrics.json").read_text())["history"]
         rows.append({
             "model": model, **model_counts(fps_cfg, loaded.variables),
@@ -211,11 +196,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"== {model}: map50 {summary['map50']:.4f} map50_95 {summary['map50_95']:.4f} "
               f"fps {fps['fps']:.1f} ({train_s:.0f} s)", file=sys.stderr, flush=True)
 
-    h, w = args.imgsz
-    budget = (f"Budget per model: {args.epochs} epochs"
+    h, w = imgsz
+    budget = (f"Budget per model: {cfg.epochs} epochs"
               + (f" x at most {args.max_steps} steps" if args.max_steps else "")
-              + f", batch {args.batch}, {args.optimizer}"
-              + f", input {w}x{h} letterboxed, seed {args.seed}; "
+              + f", batch {cfg.batch_size}, {cfg.optimizer}"
+              + f", input {w}x{h} letterboxed, seed {cfg.seed}; "
               f"{len(dataset)} images ({dataset.num_boxes} boxes), 80/20 split by image. "
               f"GFLOPs and FPS: {args.fps_imgsz[1]}x{args.fps_imgsz[0]} input, batch 1 on "
               f"{platform.processor() or platform.machine()} "
@@ -229,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"plot failed: {err}", file=sys.stderr)
     result = {
         "data": str(args.data), "out": str(out), "budget": budget,
-        "train_config": to_dict(cfg), "img_size": list(args.imgsz),
+        "train_config": to_dict(cfg), "img_size": list(imgsz),
         "models": [{k: v for k, v in r.items() if k != "history"} for r in rows],
         "wall_s": time.perf_counter() - t_start,
     }

@@ -62,6 +62,7 @@ from uavcal_jax.pipeline.drift import (
 )
 from uavcal_jax.pipeline.offset_estimators import method_names
 from uavcal_jax.plots import plot_drift_curves
+from uavcal_jax.sim.config import LOW_RESOLUTION
 from uavcal_jax.xla_cache import enable_compilation_cache
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -129,8 +130,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--length", type=positive, default=1000.0, help="straight flight, m")
     ap.add_argument("--speed", type=positive, default=10.0, help="straight flight, m/s")
     ap.add_argument("--loop-duration", type=positive, default=120.0, help="loop, seconds")
-    ap.add_argument("--resolution", type=parse_resolution, default=(376, 240),
-                    help="WxH of the simulated frames (see the docstring) [376x240]")
+    ap.add_argument("--resolution", type=parse_resolution, default=LOW_RESOLUTION,
+                    help="WxH of the simulated frames (see the docstring) "
+                         f"[{LOW_RESOLUTION[0]}x{LOW_RESOLUTION[1]}]")
     ap.add_argument("--methods", nargs="*", choices=method_names(), default=list(method_names()),
                     help="offset estimators to compare [all]")
     ap.add_argument("--seed", type=int, default=0, help="offsets, loop plan and noise")

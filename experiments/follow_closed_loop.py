@@ -58,6 +58,7 @@ from uavcal_jax.pipeline.closed_loop import (  # noqa: E402
 )
 from uavcal_jax.pipeline.detectors import load_network_detector  # noqa: E402
 from uavcal_jax.pipeline.run_config import RunConfig  # noqa: E402
+from uavcal_jax.sim.config import LOW_RESOLUTION  # noqa: E402
 from uavcal_jax.xla_cache import enable_compilation_cache  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -148,8 +149,8 @@ def main(argv=None) -> dict:
                     help="shipped (the package's weights), labels (the renderer's target "
                          "boxes) or a `uavcal detect train` run folder [shipped]")
     ap.add_argument("--duration", type=positive, default=30.0, help="seconds of flight [30]")
-    ap.add_argument("--resolution", type=parse_resolution, default=(376, 240),
-                    help="WxH of the frames [376x240]")
+    ap.add_argument("--resolution", type=parse_resolution, default=LOW_RESOLUTION,
+                    help=f"WxH of the frames [{LOW_RESOLUTION[0]}x{LOW_RESOLUTION[1]}]")
     ap.add_argument("--camera-pitch", type=float, default=30.0,
                     help="stereo rig below the forward axis, degrees [30]")
     ap.add_argument("--speed", type=positive, default=1.5, help="the car's speed, m/s [1.5]")

@@ -65,7 +65,6 @@ def test_parser_defaults_are_the_dataclass_defaults():
     configuration dataclasses and constants; a new option fails here until it is listed."""
     from uavcal_jax.commands.detect import PREDICT_BATCH, train_config
     from uavcal_jax.data.detection_labels import LABEL_FORMATS
-    from uavcal_jax.detect.augment import AugmentConfig
     from uavcal_jax.detect.config import (
         EVAL_PREDICT,
         MODELS,
@@ -73,28 +72,17 @@ def test_parser_defaults_are_the_dataclass_defaults():
         SCHEDULES,
         SELECT_METRICS,
         SERVE_PREDICT,
-        DetectorConfig,
         TrainConfig,
     )
+    from uavcal_jax.detect.options import TRAIN_FLAGS
     from uavcal_jax.detect.run import CHECKPOINTS
 
     paper = TrainConfig()
     # dest -> (default, choices); None choices: a free value
     expected = {
-        "train": {
-            "format": (None, LABEL_FORMATS), "model": (DetectorConfig().model, MODELS),
-            "epochs": (paper.epochs, None), "imgsz": (DetectorConfig().img_size, None),
-            "batch": (paper.batch_size, None), "optimizer": (paper.optimizer, OPTIMIZERS),
-            "lr": (None, None), "schedule": (None, SCHEDULES),
-            "warmup_epochs": (paper.warmup_epochs, None),
-            "no_augment": (paper.augment is None, None),
-            "mosaic": (AugmentConfig().mosaic, None), "no_ema": (not paper.ema, None),
-            "no_autoanchor": (not paper.autoanchor, None),
-            "val_fraction": (paper.val_fraction, None), "split_seed": (paper.split_seed, None),
-            "seed": (paper.seed, None), "eval_every": (paper.eval_every, None),
-            "select_metric": (paper.select_metric, SELECT_METRICS),
-            "workers": (paper.workers, None),
-        },
+        # the other train options set config fields: test_train_options_set_their_fields
+        "train": {"format": (None, LABEL_FORMATS), "optimizer": (paper.optimizer, OPTIMIZERS),
+                  **{f.dest: (argparse.SUPPRESS, f.choices) for f in TRAIN_FLAGS}},
         "eval": {
             "format": (None, LABEL_FORMATS), "checkpoint": ("best", CHECKPOINTS),
             "conf": (EVAL_PREDICT.conf_thresh, None), "iou": (EVAL_PREDICT.iou_thresh, None),
@@ -124,6 +112,35 @@ def test_parser_defaults_are_the_dataclass_defaults():
     assert train_config(parser.parse_args(argv)) == TrainConfig.paper()
     assert train_config(parser.parse_args([*argv, "--optimizer", "sgd"])) == TrainConfig.yolov5()
     assert TrainConfig().predict == EVAL_PREDICT
+    choices = {f.key: tuple(f.choices) for f in TRAIN_FLAGS if f.choices}
+    assert choices == {"detector.model": MODELS, "train.lr_schedule": SCHEDULES,
+                       "train.select_metric": SELECT_METRICS}
+
+
+def test_train_options_set_their_fields():
+    """Each `detect train` option sets its field over the --optimizer recipe."""
+    from uavcal_jax.commands.detect import train_config
+    from uavcal_jax.detect.augment import AugmentConfig
+    from uavcal_jax.detect.config import DetectConfig, DetectorConfig, TrainConfig
+    from uavcal_jax.detect.options import train_options
+
+    parser = build_parser()
+    base = ["detect", "train", "--data", "d", "--out", "o"]
+    argv = [*base, "--model", "yznet-yolo", "--epochs", "7", "--imgsz", "320x256", "--batch",
+            "4", "--lr", "0.02", "--schedule", "linear", "--warmup-epochs", "0", "--mosaic",
+            "0.5", "--no-ema", "--no-autoanchor", "--val-fraction", "0.3", "--split-seed", "2",
+            "--seed", "3", "--eval-every", "2", "--select-metric", "map50", "--workers", "1"]
+    changes = dict(epochs=7, batch_size=4, lr=0.02, lr_schedule="linear", warmup_epochs=0.0,
+                   augment=AugmentConfig(mosaic=0.5), ema=False, autoanchor=False,
+                   val_fraction=0.3, split_seed=2, seed=3, eval_every=2,
+                   select_metric="map50", workers=1)
+    detector = DetectorConfig(model="yznet-yolo", img_size=(256, 320))
+    assert train_options(parser.parse_args(argv)) == DetectConfig(
+        detector, TrainConfig.paper(**changes))
+    assert train_options(parser.parse_args([*argv, "--optimizer", "sgd"])) == DetectConfig(
+        detector, TrainConfig.yolov5(**changes))
+    assert train_config(parser.parse_args([*argv, "--no-augment"])) == TrainConfig.paper(
+        **{**changes, "augment": None})
 
 
 def test_errors_are_one_line_exit_2(tmp_path, capsys):

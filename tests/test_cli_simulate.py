@@ -47,39 +47,48 @@ def _simulate_parser() -> argparse.ArgumentParser:
     return sub.choices["simulate"]
 
 
-#: ``uavcal simulate`` option (argparse dest) -> the SimConfig field it sets.
-OPTION_FIELDS = {
-    "trajectory": "trajectory", "duration": "duration", "seed": "seed",
-    "resolution": "resolution", "color": "color", "camera_rate": "camera_rate_hz",
-    "imu_rate": "imu_rate_hz", "imu_noise": "imu_noise", "imu_offset": "imu_offset",
-    "frames": "frames", "depth": "depth",
-    "targets": "targets", "ideal_camera": "ideal_camera", "exposure": "exposure_ms",
-    "gain": "gain", "sensor_noise": "sensor_noise", "blur_samples": "blur_samples",
-    "batch": "batch_size", "workers": "png_workers", "body_frame": "body_frame",
-    "camera_pitch": "camera_pitch_deg", "follow_targets": "follow_targets",
-    "imu_rotation": "imu_rotation_deg",
+#: ``uavcal simulate`` option -> (its value, the SimConfig field it sets, the field's value).
+OPTIONS = {
+    "--trajectory": ("t.txt", "trajectory", "t.txt"), "--start": ("1.5", "start", 1.5),
+    "--duration": ("3", "duration", 3.0), "--seed": ("4", "seed", 4),
+    "--resolution": ("64x40", "resolution", (64, 40)), "--color": ("rgb", "color", "rgb"),
+    "--camera-rate": ("10", "camera_rate_hz", 10.0), "--imu-rate": ("100", "imu_rate_hz", 100.0),
+    "--no-imu-noise": (None, "imu_noise", False),
+    "--imu-offset": ("1,2,3,4,5,6", "imu_offset", (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)),
+    "--no-frames": (None, "frames", False), "--no-depth": (None, "depth", False),
+    "--no-targets": (None, "targets", False), "--ideal-camera": (None, "ideal_camera", True),
+    "--exposure": ("2.5", "exposure_ms", 2.5), "--gain": ("3", "gain", 3.0),
+    "--no-sensor-noise": (None, "sensor_noise", False),
+    "--blur-samples": ("1", "blur_samples", 1), "--batch": ("2", "batch_size", 2),
+    "--workers": ("3", "png_workers", 3), "--body-frame": ("flu", "body_frame", "flu"),
+    "--camera-pitch": ("30", "camera_pitch_deg", 30.0),
+    "--follow-targets": ("2", "follow_targets", 2),
+    "--imu-rotation": ("1,2,3", "imu_rotation_deg", (1.0, 2.0, 3.0)),
 }  # fmt: skip
 
 
-def test_option_defaults_are_the_sim_config_defaults():
+def test_options_set_their_fields_and_default_to_the_sim_config():
     parser = _simulate_parser()
-    actions = {a.dest: a for a in parser._actions}
     defaults = SimConfig()
-    for dest, name in OPTION_FIELDS.items():
-        assert actions[dest].default == getattr(defaults, name), dest
+    assert config_from_args(parser.parse_args(["--out", "rec"])) == defaults
+    argv = ["--out", "rec"]
+    for option, (value, _, _) in OPTIONS.items():
+        argv += [option] if value is None else [option, value]
+    config = config_from_args(parser.parse_args(argv))
+    assert config == SimConfig(**{name: v for _, name, v in OPTIONS.values()})
+    assert all(getattr(config, name) != getattr(defaults, name) for _, name, _ in
+               OPTIONS.values())  # each option changed something
+    actions = {a.dest: a for a in parser._actions}
     assert tuple(actions["color"].choices) == COLORS
-    # --start has no parser default (it must come with --trajectory); unset, it is the field's
-    assert actions["start"].default is None
-    args = parser.parse_args(["--out", "rec"])
-    assert config_from_args(args) == defaults
     # every default the help states is the dataclass value
     w, h = defaults.resolution
     shown = {"start": f"{defaults.start:g}", "duration": f"{defaults.duration:g}",
              "seed": str(defaults.seed), "resolution": f"{w}x{h}", "color": defaults.color,
-             "camera_rate": f"{defaults.camera_rate_hz:g}",
-             "imu_rate": f"{defaults.imu_rate_hz:g}", "exposure": f"{defaults.exposure_ms:g}",
-             "gain": f"{defaults.gain:g}", "blur_samples": str(defaults.blur_samples),
-             "batch": str(defaults.batch_size), "workers": str(defaults.png_workers)}
+             "camera_rate_hz": f"{defaults.camera_rate_hz:g}",
+             "imu_rate_hz": f"{defaults.imu_rate_hz:g}",
+             "exposure_ms": f"{defaults.exposure_ms:g}", "gain": f"{defaults.gain:g}",
+             "blur_samples": str(defaults.blur_samples), "batch_size": str(defaults.batch_size),
+             "png_workers": str(defaults.png_workers)}
     for dest, text in shown.items():
         assert f"[default: {text}]" in actions[dest].help, dest
     assert defaults.imu_offset is None and "[default: none]" in actions["imu_offset"].help

@@ -30,6 +30,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 
+from uavcal_jax.data.euroc_rig import EUROC_BIAS_SCALE
 from uavcal_jax.data.true_offset import LABELS
 from uavcal_jax.data.windows import WindowConfig
 
@@ -306,8 +307,8 @@ class InjectionConfig:
 
     protocol: str = "paper"
     noise_multiplier: float = 2.0
-    gyro_range: float = 0.08
-    accel_range: float = 0.16
+    gyro_range: float = EUROC_BIAS_SCALE[0]
+    accel_range: float = EUROC_BIAS_SCALE[1]
     single_sensor: str = "gyro"
     label: str | None = None
 

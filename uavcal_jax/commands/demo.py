@@ -13,6 +13,8 @@ and returns a JSON-able result.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import tempfile
 import time
 from collections.abc import Callable
@@ -21,12 +23,20 @@ from pathlib import Path
 from typing import Any
 
 from uavcal_jax.argtypes import parse_offset, print_json
+from uavcal_jax.config import (
+    ConfigError,
+    UnknownConfigKey,
+    apply_overrides,
+    to_dict,
+    valid_keys,
+)
 from uavcal_jax.errors import DataError
+from uavcal_jax.sim.config import LOW_RESOLUTION, SimConfig
 
-#: The demo flight: seconds of procedural flight at half EuRoC resolution (the detector's
-#: input is 384x256 anyway), with one moving target (a car) placed where the camera looks.
+#: The demo flight: seconds of procedural flight at the simulator's low resolution
+#: (:data:`uavcal_jax.sim.config.LOW_RESOLUTION`), with one moving target (a car) placed where
+#: the camera looks.
 DEMO_DURATION_S = 12.0
-DEMO_RESOLUTION = (376, 240)
 DEMO_FOLLOW_TARGETS = 1
 #: The flight's seed: one that moves from the start and turns (121 degrees of yaw). The VIO
 #: adds keyframes only with parallax, so a hover adds no information (seed 0's flight turns on
@@ -60,14 +70,57 @@ class DemoStep:
     show: Callable[[dict[str, Any]], str] = lambda result: ""
 
 
+#: The demo's simulation (``--set sim.KEY=VALUE`` changes it).
+DEMO_SIM = SimConfig(duration=DEMO_DURATION_S, resolution=LOW_RESOLUTION, seed=DEMO_SEED,
+                     batch_size=10, imu_offset=DEMO_IMU_OFFSET,
+                     follow_targets=DEMO_FOLLOW_TARGETS)
+#: The two config trees ``--set`` reaches: ``sim.*`` (:class:`SimConfig`) and ``run.*``
+#: (:class:`~uavcal_jax.pipeline.run_config.RunConfig`), resolved into ``demo_config.json``.
+DEMO_TREES = ("sim", "run")
+#: Written in the output folder: the resolved ``{"sim": ..., "run": ..., "overrides": ...}``.
+DEMO_CONFIG = "demo_config.json"
+
+
+def demo_configs(overrides: list[str], seed: int | None = None,
+                 imu_offset: tuple[float, ...] | None = None) -> dict[str, Any]:
+    """``{"sim": SimConfig, "run": RunConfig}``: :data:`DEMO_SIM` and ``RunConfig()`` with
+    ``--seed`` and ``--imu-offset`` (``None``: not given), then ``overrides``
+    (``sim.KEY=VALUE``, ``run.KEY=VALUE``) applied.
+
+    Raises:
+        ConfigError: an override outside the two trees, an unknown key (named, with the valid
+            ones) or a bad value.
+    """
+    from uavcal_jax.pipeline.run_config import RunConfig
+
+    sim = DEMO_SIM if seed is None else dataclasses.replace(DEMO_SIM, seed=seed)
+    if imu_offset is not None:
+        sim = dataclasses.replace(sim, imu_offset=imu_offset)
+    configs: dict[str, Any] = {"sim": sim, "run": RunConfig()}
+    for tree, config in configs.items():
+        prefix = tree + "."
+        mine = [o[len(prefix):] for o in overrides if o.startswith(prefix)]
+        try:
+            configs[tree] = apply_overrides(config, mine)
+        except UnknownConfigKey as err:
+            raise UnknownConfigKey(prefix + err.key,
+                                   [prefix + k for k in valid_keys(config)]) from None
+    stray = [o for o in overrides if not o.startswith(tuple(t + "." for t in DEMO_TREES))]
+    if stray:
+        raise ConfigError(f"--set {stray[0]!r}: demo keys start with sim. (the simulation) or "
+                          "run. (uavcal run's settings)")
+    try:
+        configs["sim"].validate()
+    except ValueError as err:
+        raise ConfigError(f"sim: {err}") from None
+    return configs
+
+
 def _simulate(ctx: dict[str, Any]) -> dict[str, Any]:
-    from uavcal_jax.sim.config import SimConfig
     from uavcal_jax.sim.simulate import simulate_report
 
-    config = SimConfig(duration=DEMO_DURATION_S, resolution=DEMO_RESOLUTION,
-                       seed=ctx["args"].seed, batch_size=10, imu_offset=ctx["args"].imu_offset,
-                       follow_targets=DEMO_FOLLOW_TARGETS)
-    report = simulate_report(config, ctx["out"] / "recording", progress=ctx["progress"])
+    report = simulate_report(ctx["config"]["sim"], ctx["out"] / "recording",
+                             progress=ctx["progress"])
     ctx["root"] = report.root
     return {"out": str(report.root), **report.resolved["counts"],
             "config": report.resolved["config"]}
@@ -102,7 +155,8 @@ def _calibrate(ctx: dict[str, Any]) -> dict[str, Any]:
     from uavcal_jax.pipeline.predict_offset import predict_offset
 
     seq = ctx["sequence"]
-    injected = None if ctx["args"].imu_offset is None else np.asarray(ctx["args"].imu_offset)
+    injected = ctx["config"]["sim"].imu_offset
+    injected = None if injected is None else np.asarray(injected)
     # the constant to subtract: the injected offset plus the simulated IMU's own bias
     true = true_offset("total", injected, seq.ground_truth)
     methods, estimates = {}, {}
@@ -140,7 +194,8 @@ def _run(ctx: dict[str, Any]) -> dict[str, Any]:
     from uavcal_jax.pipeline.run import run_pipeline
     from uavcal_jax.plots import plot_run
 
-    result = run_pipeline(ctx["root"], ctx["out"] / "run", offsets=ctx["offset_estimate"],
+    result = run_pipeline(ctx["root"], ctx["out"] / "run", ctx["config"]["run"],
+                          offsets=ctx["offset_estimate"],
                           offsets_from=ctx["offset_method"], progress=ctx["progress"],
                           inputs={"command": "uavcal demo"})
     figures = plot_run(result)
@@ -157,9 +212,9 @@ def _show_run(result: dict[str, Any]) -> str:
 
 #: The demo's steps, in order.
 STEPS: list[DemoStep] = [
-    DemoStep("simulate", f"simulate a {DEMO_DURATION_S:g} s procedural flight past a moving "
-             f"car ({DEMO_RESOLUTION[0]}x{DEMO_RESOLUTION[1]} stereo, IMU with a constant "
-             "offset, depth, target labels)", _simulate),
+    DemoStep("simulate", f"simulate a {DEMO_SIM.duration:g} s procedural flight past a moving "
+             f"car ({DEMO_SIM.resolution[0]}x{DEMO_SIM.resolution[1]} stereo, IMU with a "
+             "constant offset, depth, target labels)", _simulate),
     DemoStep("read", "read it back as an EuRoC ASL folder", _read, _show_summary),
     DemoStep("calibrate", "estimate the IMU's constant error without ground truth: the VIO's "
              "bias, the visual gyro least squares and the transformer (shipped weights)",
@@ -185,24 +240,35 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, metavar="DIR", default=None,
                    help="write everything under DIR (DIR/recording, DIR/run); DIR must not "
                         "exist or be empty [default: a new folder in the temporary directory]")
-    p.add_argument("--seed", type=int, default=DEMO_SEED, help="seed of the flight and scene "
-                   f"[default: {DEMO_SEED}]")
-    p.add_argument("--imu-offset", type=parse_offset, default=DEMO_IMU_OFFSET,
+    p.add_argument("--seed", type=int, default=None, help="seed of the flight and scene "
+                   f"(sim.seed) [default: {DEMO_SEED}]")
+    p.add_argument("--imu-offset", type=parse_offset, default=None,
                    metavar="GX,GY,GZ,AX,AY,AZ",
                    help="constant offset the simulated IMU carries, which the calibrate step "
                         "estimates (write --imu-offset=-0.01,... for a negative first value) "
-                        "[default: " + ",".join(f"{v:g}" for v in DEMO_IMU_OFFSET) + "]")
+                        "(sim.imu_offset) [default: "
+                        + ",".join(f"{v:g}" for v in DEMO_IMU_OFFSET) + "]")
+    p.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
+                   dest="overrides",
+                   help="sim.KEY=VALUE sets a field of the simulation (the keys of `uavcal "
+                        "simulate --help`'s --set; the demo's: duration "
+                        f"{DEMO_SIM.duration:g}, resolution {DEMO_SIM.resolution[0]}x"
+                        f"{DEMO_SIM.resolution[1]}, follow_targets {DEMO_SIM.follow_targets}, "
+                        f"batch_size {DEMO_SIM.batch_size}), run.KEY=VALUE one of `uavcal "
+                        "run`'s settings (its --set keys), e.g. --set sim.seed=3 "
+                        "run.detect.every=2; applied after --seed and --imu-offset;"
+                        f" the resolved trees go to DIR/{DEMO_CONFIG}")
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (uavcal run's metrics.json plus out, "
                         "step_seconds and the other steps' results) and no progress")
     p.set_defaults(func=run)
 
 
-def run_steps(args: argparse.Namespace, out: Path, *, progress: bool,
+def run_steps(args: argparse.Namespace, configs: dict[str, Any], out: Path, *, progress: bool,
               log: Callable[[str], None]) -> dict[str, Any]:
-    """Run :data:`STEPS`, writing under ``out``; returns ``{step name: result}`` and
-    ``seconds`` per step."""
-    ctx: dict[str, Any] = {"args": args, "out": out, "progress": progress}
+    """Run :data:`STEPS` with ``configs`` (:func:`demo_configs`), writing under ``out``;
+    returns ``{step name: result}`` and ``seconds`` per step."""
+    ctx: dict[str, Any] = {"args": args, "config": configs, "out": out, "progress": progress}
     results: dict[str, Any] = {}
     seconds: dict[str, float] = {}
     for i, step in enumerate(STEPS, start=1):
@@ -231,9 +297,13 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             print(text, flush=True)
 
+    configs = demo_configs(args.overrides, args.seed, args.imu_offset)
     out = _output_folder(args.out)
+    (out / DEMO_CONFIG).write_text(json.dumps(
+        {"sim": configs["sim"].to_dict(), "run": to_dict(configs["run"]),
+         "overrides": list(args.overrides)}, indent=2) + "\n")
     t0 = time.perf_counter()
-    results = run_steps(args, out, progress=not args.json, log=log)
+    results = run_steps(args, configs, out, progress=not args.json, log=log)
     total = time.perf_counter() - t0
     if args.json:
         run_result = results.pop("run")

@@ -13,7 +13,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from uavcal_jax.argtypes import fraction, parse_imgsz, positive_int, print_json
+from uavcal_jax.argtypes import positive_int, print_json
 from uavcal_jax.config import apply_overrides, valid_keys, write_config
 from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress
@@ -90,32 +90,19 @@ def _add_set(parser: argparse.ArgumentParser, what: str) -> None:
                              "repeatable; an unknown key is an error naming it")
 
 
-def _optimizer_help(paper, sgd) -> str:
-    return (f"rmsprop: the paper (lr {paper.lr:g}, momentum {paper.momentum:g}, weight decay "
-            f"{paper.weight_decay:g}); sgd: YOLOv5's (lr {sgd.lr:g}, Nesterov momentum "
-            f"{sgd.momentum:g}, weight decay {sgd.weight_decay:g}, warmup, {sgd.lr_schedule} "
-            "decay) [default: %(default)s]")
-
-
 def register(subparsers) -> None:
     from uavcal_jax.data.detection_labels import LABEL_FORMATS
-    from uavcal_jax.detect.augment import AugmentConfig
     from uavcal_jax.detect.config import (
         EVAL_PREDICT,
-        MODELS,
-        OPTIMIZERS,
-        SCHEDULES,
-        SELECT_METRICS,
         SERVE_PREDICT,
         DetectConfig,
-        DetectorConfig,
         PredictConfig,
         TrainConfig,
     )
+    from uavcal_jax.detect.options import add_train_options
     from uavcal_jax.detect.run import CHECKPOINTS
 
-    paper, sgd = TrainConfig.paper(), TrainConfig.yolov5()
-    description = DESCRIPTION.format(p=paper)
+    description = DESCRIPTION.format(p=TrainConfig.paper())
     raw = argparse.RawDescriptionHelpFormatter
     parser = subparsers.add_parser("detect", help="train, evaluate and run the target detector",
                                    description=description, formatter_class=raw)
@@ -130,51 +117,11 @@ def register(subparsers) -> None:
     p.add_argument("--format", choices=LABEL_FORMATS, default=None,
                    help="data set format [default: detected from the folder]")
     p.add_argument("--out", required=True, metavar="RUN", help="the run folder to write")
-    p.add_argument("--model", choices=MODELS, default=DetectorConfig.model,
-                   help="detector [default: %(default)s]")
-    p.add_argument("--epochs", type=positive_int, default=TrainConfig.epochs,
-                   help="[default: %(default)s]")
-    h, w = DetectorConfig.img_size
-    p.add_argument("--imgsz", type=parse_imgsz, default=DetectorConfig.img_size,
-                   metavar="S|WxH", help="network input, letterboxed: S for square, WxH "
-                   f"otherwise (multiples of 32) [default: {w}x{h}, the paper's]")
-    p.add_argument("--batch", type=positive_int, default=TrainConfig.batch_size,
-                   help="batch size [default: %(default)s]")
-    p.add_argument("--optimizer", choices=OPTIMIZERS, default=TrainConfig.optimizer,
-                   help=_optimizer_help(paper, sgd))
-    p.add_argument("--lr", type=float, default=None,
-                   help=f"initial learning rate [default: {TrainConfig.lr:g}]")
-    p.add_argument("--schedule", choices=SCHEDULES, default=None,
-                   help=f"learning-rate decay to lrf={TrainConfig.lrf:g} [default: "
-                        f"{paper.lr_schedule} for rmsprop, {sgd.lr_schedule} for sgd]")
-    p.add_argument("--warmup-epochs", type=float, default=TrainConfig.warmup_epochs,
-                   help=f"linear warmup (at least {TrainConfig.warmup_min_steps} steps, at "
-                        "most half the run) [default: %(default)s]")
-    p.add_argument("--no-augment", action="store_true",
-                   help="no augmentation (letterbox only)")
-    p.add_argument("--mosaic", type=fraction, default=AugmentConfig.mosaic,
-                   help="probability of a 4-image mosaic [default: %(default)s]")
-    p.add_argument("--no-ema", action="store_true", help="evaluate/keep raw weights, no EMA")
-    p.add_argument("--no-autoanchor", action="store_true",
-                   help="keep the default anchors (default: YOLOv5's check against the "
-                        "training labels, k-means anchors when best possible recall < 0.98)")
+    add_train_options(p)
     p.add_argument("--val-data", metavar="DIR", default=None,
                    help="validate on this data set instead of the fixed split of --data")
-    p.add_argument("--val-fraction", type=fraction, default=TrainConfig.val_fraction,
-                   help="fraction of images held out for validation [default: %(default)s]")
-    p.add_argument("--split-seed", type=int, default=TrainConfig.split_seed,
-                   help="seed of the split [default: %(default)s]")
-    p.add_argument("--seed", type=int, default=TrainConfig.seed,
-                   help="seed of initialisation, shuffling and augmentation "
-                        "[default: %(default)s]")
-    p.add_argument("--eval-every", type=positive_int, default=TrainConfig.eval_every,
-                   help="validate every N epochs (and after the last) [default: %(default)s]")
-    p.add_argument("--select-metric", choices=SELECT_METRICS, default=TrainConfig.select_metric,
-                   help="best-model criterion [default: %(default)s]")
     p.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
                    help="cap batches per epoch (quick trials)")
-    p.add_argument("--workers", type=positive_int, default=TrainConfig.workers,
-                   help="data loading threads [default: %(default)s]")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN from its last checkpoint (its saved configuration and "
                         "split; --epochs may be raised)")
@@ -264,34 +211,21 @@ def _require_run(run: str) -> Path:
 
 def train_config(args):
     """The :class:`~uavcal_jax.detect.config.TrainConfig` of parsed ``detect train`` options
-    (the paper's recipe, or YOLOv5's with ``--optimizer sgd``)."""
-    from uavcal_jax.detect.augment import AugmentConfig
-    from uavcal_jax.detect.config import TrainConfig
+    (the paper's recipe, or YOLOv5's with ``--optimizer sgd``, then the options given)."""
+    from uavcal_jax.detect.options import train_options
 
-    common = dict(epochs=args.epochs, batch_size=args.batch, warmup_epochs=args.warmup_epochs,
-                  augment=None if args.no_augment else AugmentConfig(mosaic=args.mosaic),
-                  ema=not args.no_ema, val_fraction=args.val_fraction,
-                  split_seed=args.split_seed, seed=args.seed, eval_every=args.eval_every,
-                  select_metric=args.select_metric, workers=args.workers,
-                  autoanchor=not args.no_autoanchor)
-    if args.lr is not None:
-        common["lr"] = args.lr
-    if args.schedule is not None:
-        common["lr_schedule"] = args.schedule
-    return TrainConfig.yolov5(**common) if args.optimizer == "sgd" else TrainConfig.paper(
-        **common)
+    return train_options(args).train
 
 
 def run_train(args) -> int:
-    from uavcal_jax.detect.config import DetectConfig, DetectorConfig
     from uavcal_jax.detect.datasets import load_dataset
+    from uavcal_jax.detect.options import train_options
     from uavcal_jax.detect.run import RunPaths
     from uavcal_jax.detect.train import train
     from uavcal_jax.plots import training_curves_writer
 
     # the options, then --set (num_classes comes from the data set)
-    config = apply_overrides(DetectConfig(DetectorConfig(model=args.model, img_size=args.imgsz),
-                                          train_config(args)), args.set)
+    config = apply_overrides(train_options(args), args.set)
     data = Path(args.data)
     if not data.exists():
         raise DataError("no such data folder", data)

@@ -10,6 +10,9 @@ import warnings
 from pathlib import Path
 
 from uavcal_jax.argtypes import (
+    ConfigFlag,
+    add_config_flags,
+    flag_overrides,
     parse_offset,
     parse_resolution,
     parse_vector3,
@@ -19,11 +22,9 @@ from uavcal_jax.argtypes import (
 )
 from uavcal_jax.config import apply_overrides, valid_keys
 from uavcal_jax.data import euroc_format as fmt
-from uavcal_jax.data.euroc_rig import EUROC_RESOLUTION
 from uavcal_jax.errors import DataError, DataRepairWarning, FlightLimitWarning
 from uavcal_jax.sim.config import BODY_FRAMES, COLORS, SimConfig
 
-#: The option defaults, from :class:`SimConfig` (one place for each).
 _D = SimConfig()
 
 DESCRIPTION = f"""\
@@ -61,99 +62,59 @@ examples:
 {keys}"""
 
 
+#: The options, by group: each an alias of ``--set FIELD=VALUE`` whose help and default are
+#: the :class:`SimConfig` field's.
+SIM_FLAGS: dict[str, tuple[ConfigFlag, ...]] = {
+    "flight": (
+        ConfigFlag("trajectory", metavar="FILE",
+                   note="The output keeps the file's own timestamps (e.g. a EuRoC ground "
+                        "truth).", default_text="a procedural flight from --seed"),
+        ConfigFlag("start", type=float, metavar="S",
+                   note="Needs --trajectory or --imu-from."),
+        ConfigFlag("duration", type=positive, metavar="S",
+                   note="With --trajectory, --start + --duration must lie within the file."),
+        ConfigFlag("body_frame", choices=BODY_FRAMES),
+        ConfigFlag("follow_targets", metavar="N"),
+        ConfigFlag("seed"),
+    ),
+    "sensors": (
+        ConfigFlag("resolution", type=parse_resolution, metavar="WxH"),
+        ConfigFlag("color", choices=COLORS),
+        ConfigFlag("camera_pitch_deg", flag="--camera-pitch", type=float, metavar="DEG",
+                   default_text="EuRoC's rig, cam0 19.8 degrees below forward"),
+        ConfigFlag("imu_rotation_deg", flag="--imu-rotation", type=parse_vector3,
+                   metavar="RX,RY,RZ", note="E.g. 0,-90,0 puts gravity on z; write "
+                   "--imu-rotation=-90,... when the first value is negative."),
+        ConfigFlag("camera_rate_hz", flag="--camera-rate", type=positive, metavar="HZ"),
+        ConfigFlag("imu_rate_hz", flag="--imu-rate", type=positive, metavar="HZ"),
+        ConfigFlag("imu_noise"),
+        ConfigFlag("imu_offset", type=parse_offset, metavar="GX,GY,GZ,AX,AY,AZ",
+                   note="Write --imu-offset=-0.02,... when the first value is negative."),
+        ConfigFlag("frames"),
+        ConfigFlag("depth"),
+        ConfigFlag("targets"),
+    ),
+    "camera (EuRoC's MT9V034: exposure x gain, shot and read noise, 8-bit quantisation, "
+    "motion blur over the exposure)": (
+        ConfigFlag("ideal_camera"),
+        ConfigFlag("exposure_ms", flag="--exposure", type=positive, metavar="MS"),
+        ConfigFlag("gain", type=positive),
+        ConfigFlag("sensor_noise"),
+        ConfigFlag("blur_samples", type=positive_int, metavar="N"),
+    ),
+    "speed (do not change the output)": (
+        ConfigFlag("batch_size", flag="--batch", type=positive_int, metavar="N"),
+        ConfigFlag("png_workers", flag="--workers", type=positive_int, metavar="N"),
+    ),
+}
+_ALL_FLAGS = tuple(f for group in SIM_FLAGS.values() for f in group)
+
+
 def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options that build a :class:`~uavcal_jax.sim.config.SimConfig`; every default is
-    the dataclass field's."""
-    g = parser.add_argument_group("flight")
-    g.add_argument("--trajectory", metavar="FILE", default=_D.trajectory,
-                   help="TUM trajectory to fly (lines 't tx ty tz qx qy qz qw', t in seconds; "
-                        "e.g. a EuRoC ground truth). The output keeps the file's own "
-                        "timestamps. Default: a procedural flight (hover, turns, climbs, "
-                        "straight legs) generated from --seed.")
-    # None (not given) so that --start without --trajectory can be refused
-    g.add_argument("--start", type=float, default=None, metavar="S",
-                   help="with --trajectory: start S seconds after the file's first timestamp "
-                        f"(relative, not the file's absolute clock) [default: {_D.start:g}]")
-    g.add_argument("--duration", type=positive, default=_D.duration, metavar="S",
-                   help=f"seconds of flight to simulate [default: {_D.duration:g}]; with "
-                        "--trajectory, --start + --duration must lie within the file")
-    g.add_argument("--body-frame", choices=BODY_FRAMES, default=_D.body_frame,
-                   help="the trajectory file's body convention: 'euroc' (EuRoC's IMU frame, x "
-                        "up, z forward) or 'flu' (x forward, y left, z up: UZH-FPV, most "
-                        "motion-capture rigs; EuRoC's IMU and cameras are mounted on it as on "
-                        "EuRoC's MAV) [default: %(default)s]")
-    g.add_argument("--follow-targets", type=int, default=_D.follow_targets, metavar="N",
-                   help="place N moving targets (car, person, alternating) on the floor where "
-                        "cam0 looks along the flight; each moves, stops and turns and stays in "
-                        "view most of the time; they are track ids 0..N-1 of the labels, "
-                        "their world tracks in target0/track.csv [default: %(default)s]")
-    g.add_argument("--seed", type=int, default=_D.seed,
-                   help="seeds the procedural flight, the IMU noise and biases, and the scene "
-                        f"[default: {_D.seed}]")
-    g = parser.add_argument_group("sensors")
-    w, h = _D.resolution
-    g.add_argument("--resolution", type=parse_resolution, default=_D.resolution, metavar="WxH",
-                   help="frame size; other than EuRoC's {}x{} the intrinsics are scaled (same "
-                        "field of view) [default: {}x{}]".format(*EUROC_RESOLUTION, w, h))
-    g.add_argument("--color", choices=COLORS, default=_D.color,
-                   help=f"8-bit gray frames (like EuRoC) or RGB [default: {_D.color}]")
-    g.add_argument("--camera-pitch", type=float, default=_D.camera_pitch_deg, metavar="DEG",
-                   help="pitch of the stereo rig below the drone's forward axis: 0 looks "
-                        "forward, 45 as UZH-FPV's 45-degree flights, 90 straight down; the "
-                        "cameras' T_BS in sensor.yaml are the pitched ones [default: EuRoC's "
-                        "rig, cam0 19.8 degrees below forward]")
-    g.add_argument("--imu-rotation", type=parse_vector3, default=_D.imu_rotation_deg,
-                   metavar="RX,RY,RZ",
-                   help="turn the IMU on the airframe by this rotation vector (degrees, in the "
-                        "IMU frame it had): the same flight and frames, the IMU and the ground "
-                        "truth in the turned frame, sensor.yaml's T_BS to match (another "
-                        "drone's mounting, e.g. 0,-90,0 puts gravity on z) [default: none]")
-    g.add_argument("--camera-rate", type=positive, default=_D.camera_rate_hz, metavar="HZ",
-                   help=f"frame rate of cam0/cam1 [default: {_D.camera_rate_hz:g}]")
-    g.add_argument("--imu-rate", type=positive, default=_D.imu_rate_hz, metavar="HZ",
-                   help=f"IMU and ground-truth rate [default: {_D.imu_rate_hz:g}]")
-    g.add_argument("--no-imu-noise", dest="imu_noise", action="store_false",
-                   default=_D.imu_noise,
-                   help="exact IMU: no white noise, no bias (default: EuRoC ADIS16448 noise "
-                        "densities, bias random walks and turn-on biases; the true biases are "
-                        "in the ground truth)")
-    g.add_argument("--imu-offset", type=parse_offset, default=_D.imu_offset,
-                   metavar="GX,GY,GZ,AX,AY,AZ",
-                   help="add this constant offset (gyro rad/s xyz, accel m/s^2 xyz) to the "
-                        "written IMU after its noise and biases: a miscalibrated recording. "
-                        "It is recorded in sim_config.json; the ground truth's biases stay the "
-                        "IMU's true ones. Write --imu-offset=-0.02,... when the first value is "
-                        "negative [default: none]")
-    g.add_argument("--no-frames", dest="frames", action="store_false", default=_D.frames,
-                   help="write only the IMU and the ground truth (no cameras, depth, labels)")
-    g.add_argument("--no-depth", dest="depth", action="store_false", default=_D.depth,
-                   help="do not write depth0/depth1")
-    g.add_argument("--no-targets", dest="targets", action="store_false", default=_D.targets,
-                   help="do not write target0 labels")
-    g = parser.add_argument_group(
-        "camera (EuRoC's MT9V034: exposure x gain, shot and read noise, 8-bit quantisation, "
-        "motion blur over the exposure)")
-    g.add_argument("--ideal-camera", action="store_true", default=_D.ideal_camera,
-                   help="write the noise-free, sharp rendered image instead (no exposure, "
-                        "noise or blur; the options below are ignored)")
-    g.add_argument("--exposure", type=positive, default=_D.exposure_ms, metavar="MS",
-                   help="exposure time, milliseconds (EuRoC's auto-exposure: about 1-10 ms "
-                        f"indoors) [default: {_D.exposure_ms:g}]")
-    g.add_argument("--gain", type=positive, default=_D.gain,
-                   help="analog gain: brightness and noise scale with it "
-                        f"[default: {_D.gain:g}]")
-    g.add_argument("--no-sensor-noise", dest="sensor_noise", action="store_false",
-                   default=_D.sensor_noise, help="no shot or read noise (exposure, gain, "
-                   "quantisation and blur stay)")
-    g.add_argument("--blur-samples", type=positive_int, default=_D.blur_samples, metavar="N",
-                   help="sub-exposures averaged for motion blur, 1 = none "
-                        f"[default: {_D.blur_samples}]")
-    g = parser.add_argument_group("speed (do not change the output)")
-    g.add_argument("--batch", type=positive_int, default=_D.batch_size, metavar="N",
-                   help=f"frames rendered per compiled call [default: {_D.batch_size}]")
-    g.add_argument("--workers", type=positive_int, default=_D.png_workers, metavar="N",
-                   help="threads encoding PNGs while the next batch renders "
-                        f"[default: {_D.png_workers}]")
+    """The options that build a :class:`~uavcal_jax.sim.config.SimConfig` (:data:`SIM_FLAGS`),
+    then ``--set``."""
+    for title, flags in SIM_FLAGS.items():
+        add_config_flags(parser.add_argument_group(title), SimConfig, flags)
     parser.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="set SimConfig fields (keys below), applied after the options "
                              "above; repeatable; an unknown key is an error naming it")
@@ -167,39 +128,15 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         DataError: ``--start`` without ``--trajectory`` or below zero; an unknown ``--set``
             key (named, with the valid ones) or a value that does not parse.
     """
-    if args.start is not None and args.trajectory is None \
+    options = flag_overrides(args, _ALL_FLAGS)
+    if "start" in options and options.get("trajectory") is None \
             and getattr(args, "imu_from", None) is None:
         raise DataError("--start needs --trajectory or --imu-from (a procedural flight has no "
                         "file clock)")
-    if args.start is not None and args.start < 0:
-        raise DataError(f"--start must be >= 0 seconds, got {args.start:g}", args.trajectory)
-    config = SimConfig(
-        trajectory=args.trajectory,
-        start=_D.start if args.start is None else float(args.start),
-        duration=float(args.duration),
-        body_frame=args.body_frame,
-        camera_pitch_deg=args.camera_pitch,
-        imu_rotation_deg=args.imu_rotation,
-        resolution=tuple(args.resolution),
-        color=args.color,
-        seed=int(args.seed),
-        imu_noise=args.imu_noise,
-        imu_offset=args.imu_offset,
-        frames=args.frames,
-        depth=args.depth,
-        targets=args.targets,
-        follow_targets=int(args.follow_targets),
-        camera_rate_hz=float(args.camera_rate),
-        imu_rate_hz=float(args.imu_rate),
-        ideal_camera=bool(args.ideal_camera),
-        exposure_ms=float(args.exposure),
-        gain=float(args.gain),
-        sensor_noise=bool(args.sensor_noise),
-        blur_samples=int(args.blur_samples),
-        batch_size=int(args.batch),
-        png_workers=int(args.workers),
-    )
-    return apply_overrides(config, args.set)
+    if options.get("start", 0.0) < 0:
+        raise DataError(f"--start must be >= 0 seconds, got {options['start']:g}",
+                        options.get("trajectory"))
+    return apply_overrides(apply_overrides(SimConfig(), options), args.set)
 
 
 def register(subparsers) -> None:
@@ -243,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
             warnings.simplefilter("always", category)
         warnings.showwarning = _one_line(warnings.showwarning, shown, notes)
         if args.imu_from is not None:
-            if args.trajectory is not None:
+            if config.trajectory is not None:
                 raise DataError("--imu-from flies the real recording's ground truth; drop "
                                 "--trajectory")
             from uavcal_jax.sim.hybrid import simulate_hybrid

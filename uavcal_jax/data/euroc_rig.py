@@ -1,9 +1,11 @@
-"""EuRoC's VI-sensor camera rig: the two lenses, their extrinsics and how the rig sits on the MAV.
+"""EuRoC's VI-sensor rig: the two lenses, their extrinsics, the IMU's rate and bias scale, and how
+the rig sits on the MAV.
 
 The camera numbers are those of ``mav0/cam0/sensor.yaml`` and ``mav0/cam1/sensor.yaml``,
 identical in every EuRoC MAV sequence: pinhole intrinsics ``fu, fv, cu, cv`` (pixels),
 radial-tangential distortion ``k1, k2, p1, p2``, 752x480 pixels at 20 Hz, and ``T_BS`` (4, 4),
-the camera-to-body transform (the body frame is the IMU frame). :func:`euroc_imu_mounting` is
+the camera-to-body transform (the body frame is the IMU frame); its ADIS16448 IMU samples at
+200 Hz. :func:`euroc_imu_mounting` is
 the IMU's orientation on the MAV, measured from the ground truth. The simulator renders this rig;
 tests compare against it.
 """
@@ -22,7 +24,9 @@ __all__ = [
     "EUROC_CAM1_DISTORTION",
     "EUROC_CAM1_INTRINSICS",
     "EUROC_CAM1_T_BS",
+    "EUROC_BIAS_SCALE",
     "EUROC_CAMERA_PITCH_DEG",
+    "EUROC_IMU_RATE_HZ",
     "EUROC_RATE_HZ",
     "EUROC_RESOLUTION",
     "euroc_T_C0C1",
@@ -32,7 +36,12 @@ __all__ = [
 ]
 
 EUROC_RESOLUTION: tuple[int, int] = (752, 480)  # (width, height)
-EUROC_RATE_HZ: float = 20.0
+EUROC_RATE_HZ: float = 20.0  # the cameras' frame rate
+#: The IMU's (and the ground truth's) sample rate, Hz.
+EUROC_IMU_RATE_HZ: float = 200.0
+#: The size of EuRoC's ground-truth IMU biases in norm: (gyro rad/s, accel m/s^2). The
+#: calibrator's physical offset range and the scale of offset errors.
+EUROC_BIAS_SCALE: tuple[float, float] = (0.08, 0.16)
 EUROC_CAM0_INTRINSICS = np.array([458.654, 457.296, 367.215, 248.375])  # fu, fv, cu, cv
 EUROC_CAM0_DISTORTION = np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
 EUROC_CAM0_T_BS = np.array(

@@ -22,6 +22,9 @@ from uavcal_jax.detect.augment import AugmentConfig
 from uavcal_jax.detect.metrics import COCO_MAX_DETS
 
 #: YOLOv5's default anchors (pixels), P3/8, P4/16, P5/32.
+#: Batch-norm running-average decay (Flax convention: YOLOv5's torch momentum 0.03 is 0.97
+#: here) and epsilon (YOLOv5's 1e-3): the defaults of every detector layer.
+BN_MOMENTUM, BN_EPS = 0.97, 1e-3
 YOLOV5_ANCHORS: tuple[tuple[tuple[float, float], ...], ...] = (
     ((10.0, 13.0), (16.0, 30.0), (33.0, 23.0)),
     ((30.0, 61.0), (62.0, 45.0), (59.0, 119.0)),
@@ -59,8 +62,8 @@ class DetectorConfig:
         balance: objectness loss weight per level.
         label_smoothing: class label smoothing epsilon (YOLOv5 default 0).
         cls_pw, obj_pw: BCE positive weights (YOLOv5 default 1).
-        bn_momentum, bn_eps: batch-norm running-average decay (Flax convention; YOLOv5's
-            torch momentum 0.03 is 0.97 here) and epsilon (YOLOv5: 1e-3).
+        bn_momentum, bn_eps: batch-norm running-average decay and epsilon
+            (:data:`BN_MOMENTUM`, :data:`BN_EPS`).
         neck_widths, neck_depth: override the PANet neck (``None``: the model's default).
         dw_impl: how depthwise convolutions are computed: ``"shift"`` (a sum of k*k shifted,
             per-channel-scaled slices; fastest on XLA:CPU), ``"grouped"`` (a grouped
@@ -80,8 +83,8 @@ class DetectorConfig:
     label_smoothing: float = 0.0
     cls_pw: float = 1.0
     obj_pw: float = 1.0
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
     neck_widths: tuple[int, int, int] | None = None
     neck_depth: int | None = None
     dw_impl: str = "shift"

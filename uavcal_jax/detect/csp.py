@@ -8,6 +8,7 @@ import math
 
 import flax.linen as nn
 
+from uavcal_jax.detect.config import BN_EPS, BN_MOMENTUM
 from uavcal_jax.detect.layers import C3, SPPF, Conv
 
 
@@ -22,8 +23,8 @@ def _depth(n: int, depth: float) -> int:
 class CSPBackbone(nn.Module):
     depth_multiple: float = 0.33
     width_multiple: float = 0.25
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
 
     @nn.compact
     def __call__(self, x, train: bool = False):

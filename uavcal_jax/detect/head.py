@@ -31,7 +31,7 @@ def _detect_bias_init(fan_in: int, stride: int, na: int, nc: int):
 
 class DetectHead(nn.Module):
     num_classes: int
-    strides: tuple[int, ...] = (8, 16, 32)
+    strides: tuple[int, ...]  # DetectorConfig.strides
     num_anchors: int = 3
 
     @nn.compact

@@ -25,6 +25,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from uavcal_jax.detect.config import BN_EPS, BN_MOMENTUM
+
 F32 = jnp.float32
 
 #: PyTorch's default conv/linear weight init (kaiming_uniform with a=sqrt(5)).
@@ -214,8 +216,8 @@ class ConvBNAct(nn.Module):
     stride: int = 1
     act: str = "relu"
     depthwise: bool = False
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
     dw_impl: str = "shift"
 
     @nn.compact
@@ -286,8 +288,8 @@ class InvertedResidual(nn.Module):
     stride: int = 1
     use_se: bool = True
     act: str = "hswish"
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
     dw_impl: str = "shift"
 
     @nn.compact
@@ -326,8 +328,8 @@ class Conv(nn.Module):
     kernel_size: int = 1
     stride: int = 1
     padding: int | None = None
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
 
     @nn.compact
     def __call__(self, x, train: bool = False):
@@ -351,8 +353,8 @@ class Bottleneck(nn.Module):
     features: int
     shortcut: bool = True
     expansion: float = 1.0
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
 
     @nn.compact
     def __call__(self, x, train: bool = False):
@@ -370,8 +372,8 @@ class C3(nn.Module):
     n: int = 1
     shortcut: bool = True
     expansion: float = 0.5
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
 
     @nn.compact
     def __call__(self, x, train: bool = False):
@@ -406,8 +408,8 @@ class SPPF(nn.Module):
 
     features: int
     k: int = 5
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
 
     @nn.compact
     def __call__(self, x, train: bool = False):

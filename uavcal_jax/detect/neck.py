@@ -9,14 +9,15 @@ from __future__ import annotations
 import flax.linen as nn
 import jax.numpy as jnp
 
+from uavcal_jax.detect.config import BN_EPS, BN_MOMENTUM
 from uavcal_jax.detect.layers import C3, Conv, upsample2
 
 
 class PANNeck(nn.Module):
     widths: tuple[int, int, int] = (64, 128, 256)
     depth: int = 1
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
 
     @nn.compact
     def __call__(self, feats, train: bool = False):

@@ -73,6 +73,7 @@ from __future__ import annotations
 import flax.linen as nn
 import jax.numpy as jnp
 
+from uavcal_jax.detect.config import BN_EPS, BN_MOMENTUM
 from uavcal_jax.detect.layers import (
     ConvBNAct,
     Dense,
@@ -110,8 +111,8 @@ def block_hidden(cin: int, expansion: float) -> int:
 class YZNetBackbone(nn.Module):
     """Stem + the eleven blocks; returns the three taps (strides 8, 16, 32) or all features."""
 
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
     dw_impl: str = "shift"
 
     @nn.compact
@@ -143,8 +144,8 @@ class YZNetClassifier(nn.Module):
     average pool, FC 1,200 (HS), FC ``num_classes`` (20). Returns logits."""
 
     num_classes: int = 20
-    bn_momentum: float = 0.97
-    bn_eps: float = 1e-3
+    bn_momentum: float = BN_MOMENTUM
+    bn_eps: float = BN_EPS
     dw_impl: str = "shift"
 
     @nn.compact

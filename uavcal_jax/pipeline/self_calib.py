@@ -37,6 +37,7 @@ from uavcal_jax.pipeline.offset_estimate import (
     OffsetMethod,
     check_sequence,
 )
+from uavcal_jax.pipeline.vio_bias import TAIL_FRACTION
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.vio.config import VioConfig
 from uavcal_jax.vio.run import run_vio
@@ -62,7 +63,7 @@ class SelfCalibOptions:
     """
 
     windows: int = 6
-    tail_fraction: float = 2.0 / 3.0
+    tail_fraction: float = TAIL_FRACTION
     sigma_gyro: float = 1e-4
     sigma_accel: float = 1e-3
     descent: DescentConfig = DescentConfig(steps=4)

@@ -45,13 +45,16 @@ from uavcal_jax.pipeline.offset_estimate import (
 from uavcal_jax.vio.config import VioConfig
 from uavcal_jax.vio.run import run_vio
 
-__all__ = ["ACCEL_SOURCES", "GOOD_STATUSES", "METHOD", "VioBiasOptions", "configure", "estimate",
-           "tail_median"]
+__all__ = ["ACCEL_SOURCES", "GOOD_STATUSES", "METHOD", "TAIL_FRACTION", "VioBiasOptions",
+           "configure", "estimate", "tail_median"]
 
 #: Frame statuses (:data:`uavcal_jax.vio.estimator.STATUSES`) whose bias state counts: solved
 #: with landmarks. Not ``initialized`` (the biases are still their prior), ``coasting`` (IMU
 #: propagation: nothing observes the biases), ``reset`` (a failure check fired).
 GOOD_STATUSES = ("tracking",)
+#: The share of a flight, at its end, that the VIO-based offset estimators (this one and
+#: :mod:`uavcal_jax.pipeline.self_calib`) read: the VIO's biases take a few seconds to settle.
+TAIL_FRACTION = 2.0 / 3.0
 #: Where the accelerometer estimate comes from (:attr:`VioBiasOptions.accel`).
 ACCEL_SOURCES = ("alignment", "states")
 
@@ -62,7 +65,7 @@ class VioBiasOptions:
 
     Attributes:
         tail_fraction: the share of the flight, at its end, whose frames count (time from
-            the first to the last camera frame); in ``(0, 1]``. Default two thirds.
+            the first to the last camera frame); in ``(0, 1]`` (:data:`TAIL_FRACTION`).
         accel: ``"alignment"`` (the batch alignment of the tracked trajectory, module
             docstring) or ``"states"`` (the bias states' tail median, as the gyro's).
         node_spacing_s: the alignment's seconds between nodes.
@@ -70,7 +73,7 @@ class VioBiasOptions:
             camera-dependent values are resolved against the recording's left camera).
     """
 
-    tail_fraction: float = 2.0 / 3.0
+    tail_fraction: float = TAIL_FRACTION
     accel: str = "alignment"
     node_spacing_s: float = 0.5
     vio: VioConfig = VioConfig()

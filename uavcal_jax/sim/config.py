@@ -21,7 +21,12 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from uavcal_jax.data.euroc_rig import EUROC_RATE_HZ, EUROC_RESOLUTION, euroc_calibration
+from uavcal_jax.data.euroc_rig import (
+    EUROC_IMU_RATE_HZ,
+    EUROC_RATE_HZ,
+    EUROC_RESOLUTION,
+    euroc_calibration,
+)
 from uavcal_jax.data.sequence import CameraCalibration
 from uavcal_jax.sim.mounting import pitched_rig
 from uavcal_jax.sim.sensor import SensorModel
@@ -30,6 +35,7 @@ __all__ = [
     "BODY_FRAMES",
     "CAMERAS",
     "COLORS",
+    "LOW_RESOLUTION",
     "SimConfig",
     "camera_calibrations",
     "imu_rotation",
@@ -45,6 +51,10 @@ COLORS = ("gray", "rgb")
 #: Body-frame conventions of a trajectory file (:attr:`SimConfig.body_frame`): EuRoC's IMU
 #: frame (x up, z forward) or a quadrotor frame x forward, y left, z up.
 BODY_FRAMES = ("euroc", "flu")
+#: The fast render size (width, height): EuRoC's 752x480 halved, a quarter of its pixels (the
+#: detector's input is 384x256 anyway). The cached training sets, the demo and the long-flight
+#: and closed-loop studies render at it.
+LOW_RESOLUTION: tuple[int, int] = (EUROC_RESOLUTION[0] // 2, EUROC_RESOLUTION[1] // 2)
 #: Stages with their own random stream, in :func:`stage_seeds`' order.
 STAGES = ("flight", "imu", "scene", "camera")
 
@@ -134,7 +144,7 @@ class SimConfig:
     targets: bool = True
     follow_targets: int = 0
     camera_rate_hz: float = EUROC_RATE_HZ
-    imu_rate_hz: float = 200.0
+    imu_rate_hz: float = EUROC_IMU_RATE_HZ
     ideal_camera: bool = False
     exposure_ms: float = 5.0
     gain: float = 1.0

@@ -41,6 +41,7 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from uavcal_jax.data.euroc_rig import EUROC_IMU_RATE_HZ
 from uavcal_jax.geometry.frames import GRAVITY_W
 
 __all__ = ["DroneConfig", "DroneFlight", "DroneState", "attitude", "fly", "hover_state",
@@ -68,7 +69,7 @@ class DroneConfig:
     velocity_gain: float = 3.0
     yaw_gain: float = 3.0
     accel_tau: float = 0.1
-    rate_hz: float = 200.0
+    rate_hz: float = EUROC_IMU_RATE_HZ
 
     def __post_init__(self):
         for name in ("max_speed", "max_accel", "max_yaw_rate", "position_gain",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from uavcal_jax.data.euroc_rig import EUROC_IMU_RATE_HZ
 from uavcal_jax.data.tum import write_tum
 from uavcal_jax.sim.imu_synth import ground_truth_from_trajectory, imu_timestamps
 from uavcal_jax.sim.trajectory import Trajectory
@@ -18,7 +19,8 @@ from uavcal_jax.sim.trajectory import Trajectory
 __all__ = ["write_flight"]
 
 
-def write_flight(trajectory: Trajectory, path: str | Path, rate_hz: float = 200.0) -> Path:
+def write_flight(trajectory: Trajectory, path: str | Path,
+                 rate_hz: float = EUROC_IMU_RATE_HZ) -> Path:
     """Write ``trajectory``'s poses at ``rate_hz`` over its whole span as a TUM file
     (seconds, world metres, body-to-world quaternion). Returns ``path``."""
     t_ns = imu_timestamps(trajectory.t_start, trajectory.t_end, rate_hz)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uavcal_jax.data.euroc_rig import EUROC_IMU_RATE_HZ
 from uavcal_jax.data.sequence import GroundTruth, ImuData
 from uavcal_jax.geometry.frames import GRAVITY_W
 from uavcal_jax.imu.noise import ImuNoise
@@ -139,8 +140,9 @@ def imu_noise(n: int, dt: float, noise: ImuNoise, seed: int = 0,
     }
 
 
-def synthesize_imu(traj: Trajectory, rate_hz: float = 200.0, noise: ImuNoise | None = None,
-                   seed: int = 0, t_start: float | None = None, t_end: float | None = None,
+def synthesize_imu(traj: Trajectory, rate_hz: float = EUROC_IMU_RATE_HZ,
+                   noise: ImuNoise | None = None, seed: int = 0,
+                   t_start: float | None = None, t_end: float | None = None,
                    *, t_ns: np.ndarray | None = None, turn_on: TurnOnBias = TurnOnBias()
                    ) -> SyntheticImu:
     """IMU samples of a trajectory at ``rate_hz`` (or at given times).

@@ -9,11 +9,12 @@ Three families (:data:`FAMILIES`):
 - ``"procedural"``: seeded procedural flights of the simulator (no data needed).
 
 Each sequence is a :func:`uavcal_jax.sim.cache.cached_simulation` (a folder per
-configuration, written atomically). Frames are rendered at :data:`RENDER_RESOLUTION`
-(half EuRoC's, the EuRoC lens scaled) and reach the model through the same resize as real
-frames (``WindowConfig.size``, ``INTER_AREA``); only cam0 is read. The IMU is EuRoC's
-ADIS16448 model with its turn-on biases, so the "clean" training IMU is as clean as a real
-one: the injected offset comes on top of an unknown bias, as in the paper.
+configuration, written atomically). Frames are rendered at
+:data:`~uavcal_jax.sim.config.LOW_RESOLUTION` (half EuRoC's, the EuRoC lens scaled) and
+reach the model through the same resize as real frames (``WindowConfig.size``,
+``INTER_AREA``); only cam0 is read. The IMU is EuRoC's ADIS16448 model with its turn-on
+biases, so the "clean" training IMU is as clean as a real one: the injected offset comes on
+top of an unknown bias, as in the paper.
 
 ``data_root`` (the folder holding ``trajectories/``) is the callers': the experiments pass the
 repository's ``../shared/data``.
@@ -27,14 +28,12 @@ from pathlib import Path
 
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.sim.cache import cached_simulation, trajectory_span
-from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.config import LOW_RESOLUTION, SimConfig
 
-__all__ = ["FAMILIES", "RENDER_RESOLUTION", "SimSetConfig", "sequence_configs",
+__all__ = ["FAMILIES", "SimSetConfig", "sequence_configs",
            "simulated_set", "trajectory_dir"]
 
 FAMILIES = ("euroc", "uzh_fpv", "procedural")
-#: Render size of the cached sets (width, height): EuRoC's 752x480 halved.
-RENDER_RESOLUTION = (376, 240)
 
 
 def trajectory_dir(data_root: str | Path, family: str) -> Path:
@@ -61,7 +60,7 @@ class SimSetConfig:
     max_duration: float | None = None
     sequences: tuple[str, ...] | None = None
     count: int = 8
-    resolution: tuple[int, int] = RENDER_RESOLUTION
+    resolution: tuple[int, int] = LOW_RESOLUTION
     color: str = "gray"
     seed: int = 0
 

@@ -33,6 +33,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from uavcal_jax.geometry.frames import GRAVITY_W
+from uavcal_jax.vio.config import NOMINAL_FOCAL_PX
 from uavcal_jax.vio.frontend import FrameFeatures
 from uavcal_jax.vio.initialize import gravity_aligned_rotation, level_keeping_heading
 
@@ -43,8 +44,8 @@ __all__ = ["MotionInit", "align_gravity_velocity", "imu_deltas", "initialize_mov
 GRAVITY_NORM = float(np.linalg.norm(np.asarray(GRAVITY_W)))
 #: Fewest PnP inliers for a frame-to-frame pose.
 MIN_PNP_INLIERS = 12
-#: PnP RANSAC threshold, normalised units (2 px at a 460 px focal length).
-PNP_THRESHOLD = 2.0 / 460.0
+#: PnP RANSAC threshold, normalised units (2 px at the nominal focal length).
+PNP_THRESHOLD = 2.0 / NOMINAL_FOCAL_PX
 
 
 @dataclasses.dataclass(frozen=True)

@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from uavcal_jax.data import euroc_rig
 from uavcal_jax.vio.config import CostConfig, SolverConfig
 from uavcal_jax.vio.implicit import solve_differentiable
 from uavcal_jax.vio.marginalize import equilibrated_pinv, equilibrated_prior
@@ -53,7 +54,7 @@ DEFAULT_GYRO = (0.02, -0.03, 0.015)
 DEFAULT_ACCEL = (0.1, -0.08, 0.12)
 #: (6,) per-channel scales of the overall (scaled) error: EuRoC ground-truth bias norms
 #: (0.08 rad/s, 0.16 m/s^2).
-EUROC_BIAS_SCALE = np.repeat([0.08, 0.16], 3)
+EUROC_BIAS_SCALE = np.repeat(euroc_rig.EUROC_BIAS_SCALE, 3)
 #: :attr:`SelfCalibConfig.method` values.
 METHODS = ("newton", "diag")
 # pixel noise of the synthetic windows; the cost's sigma is sqrt(2) larger (an observation

@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from uavcal_jax.data.euroc_rig import (
     EUROC_CAM0_T_BS,
     EUROC_CAM1_T_BS,
+    EUROC_IMU_RATE_HZ,
     euroc_calibration,
     euroc_camera,
 )
@@ -78,7 +79,7 @@ class SyntheticConfig:
     n_frames: int = 5
     n_landmarks: int = 60
     keyframe_dt: float = 0.2
-    imu_rate_hz: float = 200.0
+    imu_rate_hz: float = EUROC_IMU_RATE_HZ
     pixel_sigma: float = 0.5
     depth_range: tuple[float, float] = (2.0, 8.0)
     track_length: tuple[int, int] = (3, 10)

@@ -12,6 +12,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from uavcal_jax.geometry.frames import GRAVITY_W
 from uavcal_jax.imu import ImuNoise, Preintegrated, preintegrate
 from uavcal_jax.vio.config import CostConfig, SolverConfig
 from uavcal_jax.vio.residuals import factor_residuals, landmark_mask
@@ -57,7 +58,7 @@ def empty_window(n_frames: int, n_landmarks: int, n_obs: int, n_samples: int,
     mask = jnp.zeros((K, n_samples), bool).at[:, 0].set(True)
     pim = jax.vmap(lambda d, g, a, m: preintegrate_padded(d, g, a, m, jnp.zeros(3), jnp.zeros(3),
                                                           noise))(
-        dt, zeros3, zeros3 + jnp.array([0.0, 0.0, 9.81]), mask)
+        dt, zeros3, zeros3 - jnp.array(GRAVITY_W), mask)
     frames = _identity_frames(n_frames)
     D = FRAME_DIM * n_frames
     problem = WindowProblem(
