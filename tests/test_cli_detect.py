@@ -76,7 +76,7 @@ def test_parser_defaults_are_the_dataclass_defaults():
         DetectorConfig,
         TrainConfig,
     )
-    from uavcal_jax.detect.run import CHECKPOINTS
+    from uavcal_jax.runs import KINDS
 
     paper = TrainConfig()
     # dest -> (default, choices); None choices: a free value
@@ -96,7 +96,7 @@ def test_parser_defaults_are_the_dataclass_defaults():
             "workers": (paper.workers, None),
         },
         "eval": {
-            "format": (None, LABEL_FORMATS), "checkpoint": ("best", CHECKPOINTS),
+            "format": (None, LABEL_FORMATS), "checkpoint": ("best", KINDS),
             "conf": (EVAL_PREDICT.conf_thresh, None), "iou": (EVAL_PREDICT.iou_thresh, None),
             "batch": (paper.batch_size, None),
         },
