@@ -201,8 +201,7 @@ def main() -> None:
     stopped_early = False
     try:
         train(dataset, config.detector, config.train, run,
-              progress=(lambda it, total=None, desc="": progress_bar(
-                  it, total=total, desc=desc, enabled=show, unit="batch")),
+              progress=show,
               log=lambda line: print(line, file=sys.stderr, flush=True),
               max_steps_per_epoch=args.max_steps,
               on_epoch=_budget_callback(args.budget * 60.0, t1,

@@ -15,13 +15,13 @@ import jax
 import numpy as np
 import pytest
 
-from uavcal_jax.calib.checkpoint import RunCheckpoints
 from uavcal_jax.calib.config import CalibConfig, LoopConfig
 from uavcal_jax.calib.data import load_windows, split_windows
 from uavcal_jax.calib.loop import epoch_order, fit, restore_run
 from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataError
+from uavcal_jax.runs import Checkpoints
 from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.simulate import simulate
 
@@ -65,7 +65,7 @@ def test_resume_after_interruption_equals_uninterrupted(windows, full_run, tmp_p
     junk = tmp_path / "checkpoints" / "last" / "2.orbax-checkpoint-tmp-1234"
     junk.mkdir()
     (junk / "garbage").write_text("half a checkpoint")
-    with RunCheckpoints(tmp_path) as ck:
+    with Checkpoints(tmp_path) as ck:
         assert ck.latest("last") == 1
     with (tmp_path / "metrics.jsonl").open("a") as f:  # a row written after the checkpoint
         f.write(json.dumps({"epoch": 2, "loss": -1.0}) + "\n")
@@ -96,7 +96,7 @@ def test_best_checkpoint_follows_the_monitored_loss(windows, tmp_path):
     res = fit(CONFIG, *windows, tmp_path, progress=False, loop=LoopConfig(monitor="val"))
     rows = _rows(tmp_path)
     assert res.summary["best_epoch"] == 1 + int(np.argmin([r["val_loss"] for r in rows]))
-    with RunCheckpoints(tmp_path) as ck:
+    with Checkpoints(tmp_path) as ck:
         assert ck.latest("best") == res.summary["best_epoch"]
     best, _ = restore_run(tmp_path, windows[1])
     from uavcal_jax.calib.loop import evaluate

@@ -17,10 +17,8 @@ import numpy as np
 import pytest
 
 from uavcal_jax.calib.train import (
-    EarlyStopping,
     create_train_state,
     create_train_states,
-    early_stopping_update,
     eval_step,
     train_step,
     train_step_seeds,
@@ -155,16 +153,6 @@ def test_four_device_data_parallel_step_equals_one_device(single, tmp_path):
             for p, v in jax.tree_util.tree_leaves_with_path(one.params)}
     assert set(got.files) == set(flat)
     assert max(float(np.abs(got[k] - flat[k]).max()) for k in flat) < 1e-5
-
-
-def test_early_stopping_after_patience_epochs_without_improvement():
-    es, stop = EarlyStopping(), False
-    history = []
-    for epoch, loss in enumerate([3.0, 2.0, 2.5, 2.1, 2.0, 1.0]):
-        es, stop = early_stopping_update(es, loss, epoch, patience=3)
-        history.append(stop)
-    assert history == [False, False, False, False, True, False]
-    assert es.best == 1.0 and es.best_epoch == 5
 
 
 def test_total_label_adds_the_sensor_bias_to_the_offset(single):

@@ -15,7 +15,6 @@ import jax
 import numpy as np
 import pytest
 
-from uavcal_jax.calib.checkpoint import KINDS
 from uavcal_jax.calib.config import (
     FRAME_ENCODER_DTYPES,
     PROTOCOLS,
@@ -39,6 +38,7 @@ from uavcal_jax.data.true_offset import true_offset
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataRepairWarning
 from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD
+from uavcal_jax.runs import KINDS
 from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.simulate import simulate
 

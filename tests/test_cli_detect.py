@@ -75,7 +75,7 @@ def test_parser_defaults_are_the_dataclass_defaults():
         TrainConfig,
     )
     from uavcal_jax.detect.options import TRAIN_FLAGS
-    from uavcal_jax.detect.run import CHECKPOINTS
+    from uavcal_jax.runs import KINDS
 
     paper = TrainConfig()
     # dest -> (default, choices); None choices: a free value
@@ -84,7 +84,7 @@ def test_parser_defaults_are_the_dataclass_defaults():
         "train": {"format": (None, LABEL_FORMATS), "optimizer": (paper.optimizer, OPTIMIZERS),
                   **{f.dest: (argparse.SUPPRESS, f.choices) for f in TRAIN_FLAGS}},
         "eval": {
-            "format": (None, LABEL_FORMATS), "checkpoint": ("best", CHECKPOINTS),
+            "format": (None, LABEL_FORMATS), "checkpoint": ("best", KINDS),
             "conf": (EVAL_PREDICT.conf_thresh, None), "iou": (EVAL_PREDICT.iou_thresh, None),
             "batch": (paper.batch_size, None),
         },

@@ -120,7 +120,7 @@ def test_resume_reproduces_uninterrupted_run(tiny_runs):
     _, _, _, run_a, run_b, summary_a, partial, summary_b = tiny_runs
     assert partial["epochs"] == 2 and summary_b["epochs"] == 4
     a, b = load_run(run_a, "last"), load_run(run_b, "last")
-    assert a.meta["epoch"] == b.meta["epoch"] == 3
+    assert a.meta["epoch"] == b.meta["epoch"] == 4
     la = jax.tree.leaves(a.variables)
     lb = jax.tree.leaves(b.variables)
     assert len(la) == len(lb)

@@ -1,34 +1,28 @@
 """The calibrator's training loop: epochs, K vmapped seeds, early stopping, checkpoints,
-exact resume. The numerics are the pure steps of :mod:`uavcal_jax.calib.train`; this module
-holds the side effects (run folder, checkpoints, progress).
+exact resume. The numerics are the pure steps of :mod:`uavcal_jax.calib.train`; the run
+folder, checkpoints, resume and the epoch loop are :mod:`uavcal_jax.runs`; this module gives that
+loop the calibrator's data, steps, metrics and validation.
 
 Randomness is explicit and derived from ``(train.seed, purpose, ...)`` only, so a resumed run
 draws what the uninterrupted one drew: the epoch's window order from ``(seed, epoch)``, the
 step key of seed ``k`` (offsets and dropout) from ``(seed, k, global step)``, the inits from
 ``(seed, k)``, the validation set's one offset from ``seed``.
 
-Run folder ``run_dir``: ``config.json`` (the resolved
+Run folder ``run_dir`` (:mod:`uavcal_jax.runs`): ``config.json`` (the resolved
 :class:`~uavcal_jax.calib.config.CalibRunConfig`, its frames per window and frame shape, and the
 caller's other inputs; :func:`read_run_config`), ``metrics.jsonl`` (one JSON row per epoch:
 training loss per seed and their mean, validation loss and eq. 19-23 metrics, time) and
-``checkpoints/{last,best}`` (:mod:`uavcal_jax.calib.checkpoint`). A checkpoint is written
-after each epoch's metrics row, so a resumed run first drops rows newer than its checkpoint.
+``checkpoints/{last,best}``, each holding ``{"state": CalibState, "key": key_data}``.
 
 Early stopping (section 4.4): after ``train.patience`` epochs without improvement of the
 monitored loss (``loop.monitor``: the epoch's training loss, the paper, or the
 validation loss), the mean over seeds. ``best`` is the epoch of the lowest monitored loss.
-
-One module over 450 lines, one job: the loop's side effects (run folder, resume, evaluation
-passes, checkpoint export) share the run's folder layout and key derivation, which a split
-would have to pass between modules.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import shutil
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -39,7 +33,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax.calib.baselines import mean_offset
-from uavcal_jax.calib.checkpoint import RESUMABLE_KEYS, RunCheckpoints
 from uavcal_jax.calib.config import (
     RUN_EXTRAS,
     CalibConfig,
@@ -58,26 +51,37 @@ from uavcal_jax.calib.inject import ImuStats, training_offsets, validation_offse
 from uavcal_jax.calib.metrics import calibration_metrics, metrics_from_sums
 from uavcal_jax.calib.train import (
     CalibState,
-    EarlyStopping,
     create_train_state,
     create_train_states,
-    early_stopping_update,
     eval_step,
     eval_step_seeds,
     train_step,
     train_step_seeds,
 )
-from uavcal_jax.config import apply_overrides, from_dict, to_dict, write_config
+from uavcal_jax.config import apply_overrides, from_dict, to_dict
 from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress as progress_bar
+from uavcal_jax.runs import (
+    CONFIG_FILE,
+    Checkpoints,
+    Loop,
+    RunSpec,
+    Selection,
+    train_epochs,
+    write_folder,
+)
 
-__all__ = ["INFERENCE_KEYS", "RUN_CONFIG_FILE", "FitResult", "epoch_order", "evaluate",
+__all__ = ["INFERENCE_KEYS", "RESUMABLE_KEYS", "FitResult", "epoch_order", "evaluate",
            "first_seed",
            "export_weights", "fit", "mean_offset_baseline", "read_run_config",
            "resolved_config", "restore_run", "validation_draws"]
 
-#: A run folder's configuration (:func:`read_run_config`).
-RUN_CONFIG_FILE = "config.json"
+#: Configuration keys a resumed or restored checkpoint may differ in: the epoch budget (a
+#: resumed run may train longer), the frame encoder's operand type (a numerics choice: the
+#: parameters mean the same under either; checkpoints written before the field existed lack
+#: it) and the frame-decoding threads (checkpoints written before the run config root lack
+#: them).
+RESUMABLE_KEYS = frozenset({"train.epochs", "model.frame_encoder_dtype", "window.workers"})
 #: Settings in which a model restored to evaluate or predict (:func:`restore_run`) may differ
 #: from its checkpoint, besides ``RESUMABLE_KEYS``: what is done with the model, not what it
 #: is (run control, the batch size, where windows start, how many real frames one needs).
@@ -246,16 +250,35 @@ def read_run_config(run_dir: str | Path) -> CalibRunConfig:
     Raises:
         DataError: no or an unreadable ``config.json``, or settings the root does not have.
     """
-    path = Path(run_dir) / RUN_CONFIG_FILE
+    path = Path(run_dir) / CONFIG_FILE
     if not path.is_file():
-        raise DataError(f"not a calib run folder (no {RUN_CONFIG_FILE})", run_dir)
+        raise DataError(f"not a calib run folder (no {CONFIG_FILE})", run_dir)
     try:
         stored = json.loads(path.read_text())
         settings = {k: v for k, v in run_layout(stored).items() if k not in RUN_EXTRAS}
         return from_dict(CalibRunConfig, settings)
     except (ValueError, AttributeError) as err:  # ConfigError and JSONDecodeError included
-        raise DataError(f"{RUN_CONFIG_FILE} does not describe a calib run ({err})",
+        raise DataError(f"{CONFIG_FILE} does not describe a calib run ({err})",
                         path) from None
+
+
+def _abstract_tree(config: CalibConfig, parts: list[Windows], stats: ImuStats,
+                   seeds: int) -> dict:
+    """The structure of a checkpoint's state item: the state and the run's key data."""
+    return {"state": _init_state(config, parts, stats, seeds, abstract=True),
+            "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
+
+
+def _spec(run: CalibRunConfig, windows: list[Windows],
+          inputs: Mapping[str, Any] | None = None, ignore: frozenset[str] = RESUMABLE_KEYS
+          ) -> RunSpec:
+    """The run folder's record of ``run`` trained on ``windows`` (``config.json`` and what
+    a checkpoint must match but for ``ignore``)."""
+    return RunSpec(config=run, resolved=resolved_config(run, windows),
+                   extras={**_window_shape(windows),
+                           **({} if inputs is None else {"command": dict(inputs)})},
+                   ignore=ignore, defaults=to_dict(CalibRunConfig()), layout=run_layout,
+                   keep=run.loop.keep, meta={"seeds": run.train.seeds})
 
 
 def _restore(run_dir: str | Path, parts: list[Windows], kind: str,
@@ -266,11 +289,11 @@ def _restore(run_dir: str | Path, parts: list[Windows], kind: str,
     config, seeds = run.calib, run.train.seeds
     stats = training_statistics(parts, config.model.imu_channels,
                                 config.injection.single_sensor)
-    abstract = {"state": _init_state(config, parts, stats, seeds, abstract=True),
-                "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
-    with RunCheckpoints(run_dir, keep=run.loop.keep, read_only=True) as ckpt:
-        tree, meta = ckpt.restore(kind, abstract, resolved_config(run, parts),
-                                  ignore=INFERENCE_KEYS, defaults=to_dict(CalibRunConfig()))
+    spec = _spec(run, parts, ignore=INFERENCE_KEYS)
+    with Checkpoints(run_dir, read_only=True) as ckpt:
+        tree, meta = ckpt.restore(kind, _abstract_tree(config, parts, stats, seeds),
+                                  spec.resolved, ignore=spec.ignore, defaults=spec.defaults,
+                                  layout=spec.layout)
     return tree, meta, seeds
 
 
@@ -293,29 +316,17 @@ def export_weights(run_dir: str | Path, target: str | Path, parts: list[Windows]
     model to predict with needs only parameters, batch statistics and the IMU statistics).
     It restores like any run (:func:`restore_run`, ``kind``) but does not resume training.
     Written into a temporary sibling and renamed, so ``target`` is whole or absent."""
-    run_dir, target = Path(run_dir), Path(target)
+    run_dir = Path(run_dir)
     tree, meta, _ = _restore(run_dir, parts, kind)
     state = tree["state"]
     tree["state"] = state.replace(opt_state=jax.tree.map(jnp.zeros_like, state.opt_state))
-    tmp = target.with_name(f".{target.name}.partial")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    shutil.copy2(run_dir / RUN_CONFIG_FILE, tmp / RUN_CONFIG_FILE)
-    with RunCheckpoints(tmp, keep=1) as out:
-        out.save(kind, int(meta["epoch"]), tree, {**meta, "exported_from": str(run_dir)})
-    shutil.rmtree(tmp / "checkpoints" / ("last" if kind == "best" else "best"))
-    shutil.rmtree(target, ignore_errors=True)
-    tmp.rename(target)
-    return target
 
+    def fill(folder: Path) -> None:
+        shutil.copy2(run_dir / CONFIG_FILE, folder / CONFIG_FILE)
+        with Checkpoints(folder, kinds=(kind,)) as out:
+            out.save(kind, int(meta["epoch"]), tree, {**meta, "exported_from": str(run_dir)})
 
-def _metrics_rows(path: Path, upto: int) -> list[dict]:
-    """Rows of ``metrics.jsonl`` up to epoch ``upto``; the file is rewritten with them."""
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] \
-        if path.is_file() else []
-    rows = [r for r in rows if r["epoch"] <= upto]
-    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
-    return rows
+    return write_folder(target, fill)
 
 
 def _summary_row(row: dict) -> dict:
@@ -358,104 +369,65 @@ def fit(config: CalibConfig, train_windows, val_windows, run_dir: str | Path, *,
     if loop.monitor == "val" and not val:
         raise DataError("loop.monitor=val needs validation windows", run_dir)
     run = CalibRunConfig.of(config, loop, train[0].windows.config)
-    resolved = resolved_config(run, train)
     channels, sensor = config.model.imu_channels, config.injection.single_sensor
     stats = training_statistics(train, channels, sensor)
     label_bias = (mean_sensor_bias(train, channels, sensor)
                   if config.injection.target == "total" else None)
     root = _root(config)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    ckpt = RunCheckpoints(run_dir, keep=loop.keep)
-    metrics_path = run_dir / "metrics.jsonl"
-    es, start, stopped, rows = EarlyStopping(), 0, False, []
-    try:
-        if ckpt.latest() is not None and not resume:
-            raise DataError("the run folder already holds checkpoints; resume it or use "
-                            "another folder", run_dir)
-        if resume and ckpt.latest() is not None:
-            abstract = {"state": _init_state(config, train, stats, seeds, abstract=True),
-                        "key": jax.ShapeDtypeStruct((2,), jnp.uint32)}
-            tree, meta = ckpt.restore("last", abstract, resolved,
-                                      defaults=to_dict(CalibRunConfig()))
-            state = tree["state"]
-            root = jax.random.wrap_key_data(tree["key"])
-            rec = meta["early_stopping"]
-            es = EarlyStopping(math.inf if rec["best"] is None else rec["best"],
-                               rec["bad_epochs"], rec["best_epoch"])
-            start, stopped = int(meta["position"]["epoch"]), bool(meta["stopped"])
-            rows = _metrics_rows(metrics_path, start)
-        else:
-            state = _init_state(config, train, stats, seeds)
-            metrics_path.write_text("")
-        # Restored arrays are committed to a device, fresh ones are not, and jit caches the
-        # two apart: commit both so a resumed run reuses the uninterrupted run's executable.
-        state, root = jax.device_put((state, root), jax.devices()[0])
-        write_config(run_dir / RUN_CONFIG_FILE, run, **_window_shape(train),
-                     **({} if inputs is None else {"command": dict(inputs)}))
-        bs = config.train.batch_size
-        steps = -(-n // bs)
-        step_fn = train_step_seeds if seeds > 1 else train_step
-        key_data = jax.random.key_data(root)
-        for epoch in range(start, config.train.epochs):
-            if stopped or (stop_after is not None and epoch - start >= stop_after):
-                break
-            t0 = time.perf_counter()
-            order = epoch_order(root, epoch, n)
-            loss = np.zeros(seeds)
-            tilt_deg = np.zeros(seeds)  # the tilt head's mean angle error (model.tilt_head)
-            bar = progress_bar(range(steps), desc=f"epoch {epoch + 1}/{config.train.epochs}",
-                               enabled=progress, unit="step")
-            for b in bar:
-                flat = order[b * bs:(b + 1) * bs]
-                batch = gather(train, flat, config.model, sensor, bs,
-                               label=config.injection.target)
-                state, m = step_fn(state, batch, _step_keys(root, seeds, epoch * steps + b))
-                loss += np.reshape(jax.device_get(m["loss"]), -1) * flat.size
-                if "tilt_deg" in m:
-                    tilt_deg += np.reshape(jax.device_get(m["tilt_deg"]), -1) * flat.size
-            loss /= n
-            if not np.all(np.isfinite(loss)):
-                raise FloatingPointError(f"non-finite training loss at epoch {epoch + 1}: "
-                                         f"{loss.tolist()}")
-            row: dict[str, Any] = {"epoch": epoch + 1, "loss": float(loss.mean()),
-                                   "loss_per_seed": loss.tolist(),
-                                   "train_time_s": time.perf_counter() - t0}
-            if config.model.tilt_head:
-                row["tilt_deg"] = float(tilt_deg.mean() / n)
-            if val:
-                v = evaluate(state, val, seeds, draws=loop.val_offsets,
-                             label_bias=label_bias)
-                vloss = np.reshape(v["loss"], -1)
-                row.update(val_loss=float(vloss.mean()), val_loss_per_seed=vloss.tolist(),
-                           val_offset_rmse=float(np.mean([m["offset_rmse"]
-                                                          for m in v["metrics"]])),
-                           val_sign_f1=float(np.mean([m["sign_f1"] for m in v["metrics"]])),
-                           val_metrics=v["metrics"],
-                           baseline_offset_rmse=v["baseline_mean_offset"]["offset_rmse"],
-                           window_mean_offset_rmse=v["baseline_window_mean"]["offset_rmse"])
-                if "z_rms" in v["metrics"][0]:  # a model with an uncertainty: its calibration
-                    row["val_z_rms"] = float(np.mean([m["z_rms"] for m in v["metrics"]]))
-            monitored = row["val_loss"] if loop.monitor == "val" else row["loss"]
-            es, stopped = early_stopping_update(es, monitored, epoch + 1,
-                                                config.train.patience)
-            rows.append(row)
-            with metrics_path.open("a") as f:
-                f.write(json.dumps(row) + "\n")
-            meta = {"epoch": epoch + 1, "position": {"epoch": epoch + 1, "batch": 0},
-                    "early_stopping": {"best": None if math.isinf(es.best) else es.best,
-                                       "bad_epochs": es.bad_epochs,
-                                       "best_epoch": es.best_epoch},
-                    "stopped": stopped, "seeds": seeds, "config": resolved}
-            tree = {"state": state, "key": key_data}
-            if es.best_epoch == epoch + 1:
-                ckpt.save("best", epoch + 1, tree, meta)
-            ckpt.save("last", epoch + 1, tree, meta)
-    finally:
-        ckpt.close()
-    best = next((r for r in rows if r["epoch"] == es.best_epoch), {})
+    key_data = jax.random.key_data(root)
+    bs = config.train.batch_size
+    steps = -(-n // bs)
+    step_fn = train_step_seeds if seeds > 1 else train_step
+
+    def batches(epoch: int):
+        order = epoch_order(root, epoch, n)
+        for b in range(steps):
+            flat = order[b * bs:(b + 1) * bs]
+            batch = gather(train, flat, config.model, sensor, bs, label=config.injection.target)
+            yield (batch, _step_keys(root, seeds, epoch * steps + b)), flat.size
+
+    def step(state: CalibState, batch_key):
+        state, m = step_fn(state, *batch_key)
+        return state, {k: m[k] for k in ("loss", "tilt_deg") if k in m}
+
+    def row(_state, means: dict) -> dict:
+        loss = np.reshape(means["loss"], -1)
+        out = {"loss": float(loss.mean()), "loss_per_seed": loss.tolist()}
+        if config.model.tilt_head:  # the tilt head's mean angle error
+            out["tilt_deg"] = float(np.mean(means["tilt_deg"]))
+        return out
+
+    def validate(state: CalibState, _epoch: int) -> dict:
+        v = evaluate(state, val, seeds, draws=loop.val_offsets, label_bias=label_bias)
+        vloss = np.reshape(v["loss"], -1)
+        out = dict(val_loss=float(vloss.mean()), val_loss_per_seed=vloss.tolist(),
+                   val_offset_rmse=float(np.mean([m["offset_rmse"] for m in v["metrics"]])),
+                   val_sign_f1=float(np.mean([m["sign_f1"] for m in v["metrics"]])),
+                   val_metrics=v["metrics"],
+                   baseline_offset_rmse=v["baseline_mean_offset"]["offset_rmse"],
+                   window_mean_offset_rmse=v["baseline_window_mean"]["offset_rmse"])
+        if "z_rms" in v["metrics"][0]:  # a model with an uncertainty: its calibration
+            out["val_z_rms"] = float(np.mean([m["z_rms"] for m in v["metrics"]]))
+        return out
+
+    monitored = "val_loss" if loop.monitor == "val" else "loss"
+    spec = _spec(run, train, inputs)
+    result = train_epochs(
+        run_dir, spec, Loop(
+            epochs=config.train.epochs, steps=steps, batches=batches, step=step, row=row,
+            evaluate=validate if val else None,
+            selection=Selection(lambda r: r[monitored], patience=config.train.patience),
+            last=lambda state: {"state": state, "key": key_data},
+            best=lambda state: {"state": state, "key": key_data},
+            restore=lambda tree: tree["state"]),
+        init=lambda: _init_state(config, train, stats, seeds),
+        abstract=lambda: _abstract_tree(config, train, stats, seeds),
+        resume=resume, stop_after=stop_after, progress=progress)
+    state, rows = result.state, result.history
+    best = next((r for r in rows if r["epoch"] == result.best.epoch), {})
     summary = {"run": str(run_dir), "seeds": seeds, "epochs": len(rows),
                "steps": int(np.reshape(jax.device_get(state.step), -1)[0]),
-               "stopped_early": stopped, "best_epoch": es.best_epoch,
+               "stopped_early": result.stopped, "best_epoch": result.best.epoch,
                "monitor": loop.monitor, "num_train": n,
                "num_val": int(sum(len(p.indices) for p in val)),
                "best": _summary_row(best), "final": _summary_row(rows[-1]) if rows else {}}

@@ -58,11 +58,9 @@ from uavcal_jax.calib.mounting import isotropic_statistics, random_mountings, re
 __all__ = [
     "CalibState",
     "DataParallel",
-    "EarlyStopping",
     "create_train_state",
     "create_train_states",
     "data_parallel",
-    "early_stopping_update",
     "eval_step",
     "eval_step_seeds",
     "make_optimizer",
@@ -378,21 +376,3 @@ def data_parallel(devices=None) -> DataParallel:
         "eval_step_seeds": jax.jit(_eval_seeds),
     }
     return DataParallel(mesh=mesh, shard=shard, replicate=replicate, **steps)
-
-
-class EarlyStopping(NamedTuple):
-    """Best loss so far, epochs since it improved, and the epoch it was reached."""
-
-    best: float = float("inf")
-    bad_epochs: int = 0
-    best_epoch: int = -1
-
-
-def early_stopping_update(es: EarlyStopping, loss: float, epoch: int,
-                          patience: int) -> tuple[EarlyStopping, bool]:
-    """Section 4.4: stop after ``patience`` epochs without an improvement of ``loss`` (the
-    training or the validation loss). Returns the new record and whether to stop."""
-    if loss < es.best:
-        return EarlyStopping(float(loss), 0, epoch), False
-    es = EarlyStopping(es.best, es.bad_epochs + 1, es.best_epoch)
-    return es, es.bad_epochs >= patience

@@ -97,7 +97,6 @@ HEADLINE = ("val_loss", "val_offset_rmse", "val_sign_f1", "baseline_offset_rmse"
 
 
 def register(subparsers) -> None:
-    from uavcal_jax.calib.checkpoint import KINDS
     from uavcal_jax.calib.config import (
         FRAME_ENCODER_DTYPES,
         PROTOCOLS,
@@ -108,6 +107,7 @@ def register(subparsers) -> None:
     )
     from uavcal_jax.calib.presets import PRESETS
     from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD, method_names
+    from uavcal_jax.runs import KINDS
 
     raw = argparse.RawDescriptionHelpFormatter
     parser = subparsers.add_parser("calib", help="train and evaluate the IMU self-calibrator",

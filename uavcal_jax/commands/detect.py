@@ -100,7 +100,7 @@ def register(subparsers) -> None:
         TrainConfig,
     )
     from uavcal_jax.detect.options import add_train_options
-    from uavcal_jax.detect.run import CHECKPOINTS
+    from uavcal_jax.runs import KINDS
 
     description = DESCRIPTION.format(p=TrainConfig.paper())
     raw = argparse.RawDescriptionHelpFormatter
@@ -143,7 +143,7 @@ def register(subparsers) -> None:
                         "validation split]")
     p.add_argument("--format", choices=LABEL_FORMATS, default=None,
                    help="format of --data [default: detected]")
-    p.add_argument("--checkpoint", choices=CHECKPOINTS, default=CHECKPOINTS[0],
+    p.add_argument("--checkpoint", choices=KINDS, default=KINDS[0],
                    help="which weights [default: %(default)s]")
     p.add_argument("--conf", type=float, default=EVAL_PREDICT.conf_thresh,
                    help="confidence threshold [default: %(default)s, as YOLOv5 val]")
@@ -239,7 +239,7 @@ def run_train(args) -> int:
     det_cfg = config.detector.replace(num_classes=max(1, dataset.num_classes))
     show = not args.json
     summary = train(dataset, det_cfg, config.train, args.out, resume=args.resume,
-                    val_dataset=val, progress=_progress(show), log=_log(show),
+                    val_dataset=val, progress=show, log=_log(show),
                     max_steps_per_epoch=args.max_steps,
                     on_epoch=training_curves_writer(RunPaths(Path(args.out)).png))
     if not args.no_export:

@@ -67,7 +67,7 @@ def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: s
                                   train_cfg.map_max_dets, interpolation)
     out = result.as_dict(class_names)
     out.update(run=str(run), data=where, num_images=len(dataset), num_boxes=dataset.num_boxes,
-               interpolation=interpolation, checkpoint_epoch=loaded.meta.get("epoch", -1) + 1,
+               interpolation=interpolation, checkpoint_epoch=loaded.meta["epoch"],
                wall_s=round(time.perf_counter() - t0, 2))
     (run / "eval.json").write_text(json.dumps(out, indent=1))
     return out

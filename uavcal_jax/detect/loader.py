@@ -232,14 +232,6 @@ class DetectionLoader:
         self.next_epoch += 1
         return self.epoch(epoch)
 
-    def state_dict(self) -> dict:
-        """What a checkpoint needs to continue the stream: ``{"seed", "next_epoch"}``."""
-        return {"seed": self.seed, "next_epoch": self.next_epoch}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.seed = int(state["seed"])
-        self.next_epoch = int(state["next_epoch"])
-
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True)

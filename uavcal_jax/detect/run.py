@@ -4,18 +4,18 @@ Run folder::
 
     config.json     the resolved DetectConfig (detector, train) and the data set's info (data)
     split.json      the train/val image ids (the fixed split; eval reuses it)
-    metrics.csv     one row per epoch (losses, lr, map50, map50_95, time)
+    metrics.jsonl   one row per epoch (losses, lr, map50, map50_95, time; :mod:`uavcal_jax.runs`)
+    metrics.csv     the same rows as a table
     metrics.json    the same rows, plus the best epoch and scores
     curves.png      loss and mAP curves (drawn by the caller's per-epoch callback,
                     :func:`uavcal_jax.plots.training_curves_writer`)
-    checkpoints/last/<epoch>/  full train state + meta (resume)
+    checkpoints/last/<epoch>/  full train state + meta (resume; :mod:`uavcal_jax.runs`)
     checkpoints/best/<epoch>/  EMA variables of the best epoch + meta
     export/detector.jax        the exported predict function (written by ``uavcal detect``)
 
 :func:`export_run` cuts a run down to what predicting needs (``config.json``, ``metrics.json``
-and the best checkpoint), as the shipped weights are. Only :func:`load_run` needs the model
-and orbax; they are imported when it is called, so the
-paths and constants here are cheap to import (the CLI builds its parser from them).
+and the best checkpoint), as the shipped weights are. Only :func:`load_run` needs the model; it is
+imported when called.
 """
 
 from __future__ import annotations
@@ -30,9 +30,7 @@ from pathlib import Path
 from uavcal_jax import config as config_io
 from uavcal_jax.detect.config import DetectConfig, DetectorConfig, TrainConfig
 from uavcal_jax.errors import DataError
-
-#: The checkpoints a run keeps: the best EMA weights and the last full train state.
-CHECKPOINTS = ("best", "last")
+from uavcal_jax.runs import CONFIG_FILE, KINDS, Checkpoints, RunSpec, write_folder
 
 
 @dataclass(frozen=True)
@@ -43,7 +41,7 @@ class RunPaths:
 
     @property
     def config(self) -> Path:
-        return self.root / "config.json"
+        return self.root / CONFIG_FILE
 
     @property
     def split(self) -> Path:
@@ -67,8 +65,8 @@ class RunPaths:
 
     def checkpoints(self, which: str) -> Path:
         """``checkpoints/best`` or ``checkpoints/last``."""
-        if which not in CHECKPOINTS:
-            raise ValueError(f"which must be one of {CHECKPOINTS}, not {which!r}")
+        if which not in KINDS:
+            raise ValueError(f"which must be one of {KINDS}, not {which!r}")
         return self.root / "checkpoints" / which
 
 
@@ -76,11 +74,27 @@ class RunPaths:
 DATA_KEY = "data"
 
 
+#: Settings a resumed run may change: the epoch budget (the schedule is that of the new one).
+RESUMABLE_KEYS = frozenset({"train.epochs"})
+
+
+def run_spec(det_cfg: DetectorConfig, cfg: TrainConfig, data: dict,
+             steps_per_epoch: int | None = None) -> RunSpec:
+    """The run folder's record (:class:`uavcal_jax.runs.RunSpec`): ``config.json`` holds
+    the resolved :class:`DetectConfig` and the data set's description (``data``); each
+    checkpoint the configuration, the batches per epoch and the selection metric."""
+    config = DetectConfig(det_cfg, cfg)
+    return RunSpec(config=config, resolved=config_io.to_dict(config),
+                   extras={DATA_KEY: data}, ignore=RESUMABLE_KEYS, keep=1,
+                   meta={"steps_per_epoch": steps_per_epoch,
+                         "select_metric": cfg.select_metric})
+
+
 def write_config(paths: RunPaths, det_cfg: DetectorConfig, cfg: TrainConfig, data: dict
                  ) -> None:
-    """``config.json``: the resolved :class:`DetectConfig` and the data set's description
-    (``data``)."""
-    config_io.write_config(paths.config, DetectConfig(det_cfg, cfg), **{DATA_KEY: data})
+    """``config.json`` as training writes it (:func:`run_spec`)."""
+    spec = run_spec(det_cfg, cfg, data)
+    config_io.write_config(paths.config, spec.config, **spec.extras)
 
 
 def read_config(paths: RunPaths) -> tuple[DetectConfig, dict]:
@@ -135,33 +149,30 @@ def export_run(run: str | Path, target: str | Path, which: str = "best", *,
         raise DataError(f"not a training run with a {which} checkpoint", src.root)
     if params_dtype is not None and which != "best":
         raise ValueError("params_dtype applies to the best checkpoint (variables) only")
-    tmp = target.with_name(f".{target.name}.partial")
-    shutil.rmtree(tmp, ignore_errors=True)
-    out = RunPaths(tmp)
-    out.checkpoints(which).parent.mkdir(parents=True)
-    shutil.copy2(src.config, out.config)
-    if src.json.is_file():
-        shutil.copy2(src.json, out.json)
-    if params_dtype is None:
-        shutil.copytree(src.checkpoints(which), out.checkpoints(which))
-    else:
-        import jax
-        import numpy as np
 
-        from uavcal_jax.detect.checkpoint import Checkpoints
+    def fill(folder: Path) -> None:
+        out = RunPaths(folder)
+        out.checkpoints(which).parent.mkdir(parents=True)
+        shutil.copy2(src.config, out.config)
+        if src.json.is_file():
+            shutil.copy2(src.json, out.json)
+        if params_dtype is None:
+            shutil.copytree(src.checkpoints(which), out.checkpoints(which))
+        else:
+            import jax
+            import numpy as np
 
-        loaded = load_run(src.root, which)
-        params = jax.tree.map(lambda x: np.asarray(x).astype(params_dtype),
-                              loaded.variables["params"])
-        with Checkpoints(out.checkpoints(which), max_to_keep=1) as ck:
-            ck.save(int(loaded.meta.get("epoch", 0)) + 1,
-                    {"params": params, "batch_stats": loaded.variables["batch_stats"]},
-                    {**loaded.meta, "params_dtype": params_dtype})
-    for name, obj in (extra or {}).items():
-        (tmp / name).write_text(json.dumps(obj, indent=1))
-    shutil.rmtree(target, ignore_errors=True)
-    tmp.rename(target)
-    return target
+            loaded = load_run(src.root, which)
+            params = jax.tree.map(lambda x: np.asarray(x).astype(params_dtype),
+                                  loaded.variables["params"])
+            with Checkpoints(folder, kinds=(which,)) as ck:
+                ck.save(which, loaded.meta["epoch"],
+                        {"params": params, "batch_stats": loaded.variables["batch_stats"]},
+                        {**loaded.meta, "params_dtype": params_dtype})
+        for name, obj in (extra or {}).items():
+            (folder / name).write_text(json.dumps(obj, indent=1))
+
+    return write_folder(target, fill)
 
 
 @dataclass(frozen=True)
@@ -182,7 +193,6 @@ def load_run(run: str | Path, which: str = "best") -> LoadedRun:
     ``"best"``, the EMA variables of the best epoch, or ``"last"``)."""
     import jax
 
-    from uavcal_jax.detect.checkpoint import Checkpoints
     from uavcal_jax.detect.optim import make_optimizer
     from uavcal_jax.detect.step import abstract_variables, init_train_state
 
@@ -190,14 +200,14 @@ def load_run(run: str | Path, which: str = "best") -> LoadedRun:
     config, data = read_config(paths)
     det_cfg, train_cfg = config.detector, config.train
     abstract = abstract_variables(det_cfg)
-    with Checkpoints(paths.checkpoints(which), read_only=True) as ck:
+    with Checkpoints(paths.root, read_only=True, kinds=(which,)) as ck:
         if which == "best":
-            variables, meta = ck.restore(abstract)
+            variables, meta = ck.restore(which, abstract)
         else:
             tx = make_optimizer(train_cfg, 1, abstract["params"])
             st_abs = jax.eval_shape(lambda: init_train_state(jax.random.PRNGKey(0), det_cfg,
                                                              tx))
-            state, meta = ck.restore(st_abs)
+            state, meta = ck.restore(which, st_abs)
             variables = state.variables(train_cfg.ema)
     return LoadedRun(paths.root, det_cfg, train_cfg, data, read_split(paths),
                      variables, meta)
