@@ -2,7 +2,7 @@
 :mod:`uavcal_jax.data`), and the run's result: camera-rate trajectory, flags, timings, its
 summary (with ATE/RPE against ground truth) and the per-frame table written beside the
 trajectory (:data:`FRAME_COLUMNS`, :func:`write_frames_csv`: the format lives here, beside the
-:class:`~uavcal_jax.vio.estimator.FrameEstimate` whose fields it lists).
+:class:`~uavcal_jax.vio.frame_estimate.FrameEstimate` whose fields it lists).
 
 Stereo pairing: a left frame is paired with the right frame of the same timestamp (within
 ``PAIR_TOLERANCE_NS``); a left frame without one is processed monocularly (no stereo
@@ -30,7 +30,8 @@ from uavcal_jax.errors import DataError, DataRepairWarning
 from uavcal_jax.imu import remove_offset
 from uavcal_jax.progress import progress
 from uavcal_jax.vio.config import VioConfig, resolve_camera
-from uavcal_jax.vio.estimator import FrameEstimate, StereoVio
+from uavcal_jax.vio.estimator import StereoVio
+from uavcal_jax.vio.frame_estimate import FrameEstimate
 from uavcal_jax.vio.stage_timer import TIMING_KEYS
 from uavcal_jax.vio.trajectory_metrics import trajectory_errors
 
@@ -40,14 +41,14 @@ __all__ = ["FRAME_COLUMNS", "PAIR_TOLERANCE_NS", "VioResult", "estimate_stream",
 #: Largest left/right timestamp difference still paired as one stereo frame, ns.
 PAIR_TOLERANCE_NS = 1_000_000
 #: Columns of the per-frame table (:meth:`VioResult.frame_rows`, :func:`write_frames_csv`):
-#: :class:`~uavcal_jax.vio.estimator.FrameEstimate`'s flags, its cost, and its timings in ms.
+#: :class:`~uavcal_jax.vio.frame_estimate.FrameEstimate`'s flags, its cost, and its timings in ms.
 FRAME_COLUMNS = ("t_ns", "status", "reason", "keyframe", "tracked", "stereo", "landmarks",
                  "iterations", "cost", "frontend_ms", "solve_ms", "marginalize_ms", "total_ms")
 
 
 @dataclasses.dataclass(frozen=True)
 class VioResult:
-    """A VIO run: one :class:`~uavcal_jax.vio.estimator.FrameEstimate` per left frame.
+    """A VIO run: one :class:`~uavcal_jax.vio.frame_estimate.FrameEstimate` per left frame.
 
     Attributes:
         frames: the per-frame estimates.  resets: failure resets.
