@@ -76,9 +76,6 @@ def test_mean_offset_baseline(x64):
     mask = rng.random((5, 4)) > 0.3
     np.testing.assert_allclose(bl.mean_offset(train), train.reshape(-1, 6).mean(0), atol=1e-15)
     np.testing.assert_allclose(bl.mean_offset(train, mask), train[mask].mean(0), atol=1e-15)
-    pred = bl.mean_offset_predictions(train, 7)
-    assert pred.shape == (7, 6) and pred.dtype == jnp.float64
-    np.testing.assert_allclose(pred, np.broadcast_to(train.reshape(-1, 6).mean(0), (7, 6)))
 
 
 def test_exact_imu_recovers_offset(x64, flight):

@@ -13,8 +13,8 @@ from conftest import shared_path
 from uavcal_jax.cli import main
 from uavcal_jax.data.offset_json import read_offset_json, write_offset_json
 from uavcal_jax.data.tum import read_tum
+from uavcal_jax.data.vio_frames import FRAME_COLUMNS
 from uavcal_jax.errors import DataError
-from uavcal_jax.vio.run import FRAME_COLUMNS
 
 
 def _run(capsys, *argv):

@@ -16,7 +16,6 @@ from uavcal_jax.imu import (
     bias_correct,
     interval_batch,
     interval_samples,
-    interval_samples_padded,
     preintegrate,
 )
 
@@ -388,27 +387,11 @@ def test_interval_errors():
         interval_batch(t, g, a, [t[0]], [t[100]], capacity=10)
 
 
-def test_interval_batch_and_padded_jax_agree(x64):
+def test_interval_batch_preintegrates_as_each_interval(x64):
     t, g, a = _stream()
     starts = np.array([t[3] + 1_234_567, t[40], t[100] + 4_999_999])
     ends = np.array([t[43] + 10, t[41], t[300] + 1])
     batch = interval_batch(t, g, a, starts, ends)
-    cap = batch.dt.shape[1]
-    # relative float seconds for the jax version
-    tf = (t - t[0]) * 1e-9
-    sf = (starts - t[0]) * 1e-9
-    ef = (ends - t[0]) * 1e-9
-    padded = jax.jit(jax.vmap(lambda s, e: interval_samples_padded(tf, g, a, s, e, cap)))(sf, ef)
-    np.testing.assert_array_equal(np.asarray(padded.mask), batch.mask)
-    np.testing.assert_allclose(np.asarray(padded.dt), batch.dt, atol=1e-12)
-    np.testing.assert_allclose(np.asarray(padded.gyro), batch.gyro, atol=1e-9)
-    assert np.all(np.asarray(padded.complete))
-    # integer nanoseconds in jax (x64) give the exact durations
-    padded_ns = interval_samples_padded(t, g, a, starts[0], ends[0], cap)
-    np.testing.assert_allclose(np.asarray(padded_ns.dt), batch.dt[0], atol=1e-18)
-    # capacity too small -> incomplete
-    short = interval_samples_padded(tf, g, a, sf[2], ef[2], 10)
-    assert not bool(short.complete)
     # preintegration of the batch equals per-interval preintegration
     pb = preintegrate(batch.dt, batch.gyro, batch.accel, mask=batch.mask)
     for i in range(len(starts)):

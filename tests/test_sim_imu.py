@@ -21,13 +21,19 @@ from uavcal_jax.sim.imu_synth import (
     SyntheticImu,
     TurnOnBias,
     ground_truth_from_trajectory,
-    ideal_imu,
     imu_noise,
     imu_timestamps,
     synthesize_imu,
 )
 from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import fit_tum_trajectory
+
+
+def ideal_imu(traj: Trajectory, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's exact (noise-free) ``(gyro, accel)`` at ``t_s`` seconds."""
+    imu = synthesize_imu(traj, t_ns=np.round(np.asarray(t_s) * 1e9).astype(np.int64)).imu
+    return imu.gyro, imu.accel
+
 
 # --------------------------------------------------------------------------------------------
 # (a) The simulator's IMU agrees with a real IMU

@@ -23,13 +23,13 @@ def _rotvecs(rng, n=64):
     return axes * angles[:, None]
 
 
-def test_hat_vee_roundtrip(x64):
+def test_hat_is_the_cross_product(x64):
     rng = np.random.default_rng(0)
     v = rng.normal(size=(10, 3))
     W = so3.hat(v)
     u = rng.normal(size=(10, 3))
     np.testing.assert_allclose(np.einsum("nij,nj->ni", W, u), np.cross(v, u), atol=1e-14)
-    np.testing.assert_allclose(so3.vee(W), v, atol=1e-15)
+    np.testing.assert_array_equal(W[:, [2, 0, 1], [1, 2, 0]], v)  # (W32, W13, W21)
     np.testing.assert_allclose(W, -np.swapaxes(W, 1, 2))
 
 
@@ -72,8 +72,6 @@ def test_right_jacobian_definition(x64):
         np.testing.assert_allclose(Jr, num, atol=2e-8)
         Jinv = np.asarray(so3.right_jacobian_inv(phi))
         np.testing.assert_allclose(Jinv @ Jr, np.eye(3), atol=1e-12)
-        np.testing.assert_allclose(np.asarray(so3.left_jacobian(phi)),
-                                   np.asarray(so3.right_jacobian(-phi)), atol=0)
 
 
 def test_right_jacobian_equals_autodiff(x64):

@@ -31,8 +31,15 @@ from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.simulate import simulate
 from uavcal_jax.vio.body_state import BodyState
 from uavcal_jax.vio.config import FailureLimits
-from uavcal_jax.vio.estimator import StereoVio, TrackedFrame
-from uavcal_jax.vio.failure import Failure, check_failure, outlier_frames, rejected_observations
+from uavcal_jax.vio.estimator import StereoVio
+from uavcal_jax.vio.failure import (
+    Failure,
+    FailureCounters,
+    check_failure,
+    outlier_frames,
+    rejected_observations,
+)
+from uavcal_jax.vio.frame_estimate import TrackedFrame
 from uavcal_jax.vio.frontend import FrameFeatures
 from uavcal_jax.vio.run import estimate_stream, stereo_pairs
 
@@ -102,6 +109,26 @@ def test_outlier_test_needs_consecutive_frames_with_enough_tracks():
     assert check_failure(s, s, 1.0, 100, 0, lim, outliers=over - 1) is None
     off = FailureLimits(max_outlier_frames=0)
     assert check_failure(s, s, 1.0, 100, 0, off, outliers=99) is None
+
+
+def test_failure_counters_wait_for_a_settled_start_then_count_rejected_tracks():
+    lim = FailureLimits()
+    L, M = 10, 8
+    # two tracked observations of landmark 1 (slots 1 and 2), both pruned by the solve
+    updates = (np.array([L]), None, None, np.array([1, 2]), np.array([1, 1]), None, None)
+    used = np.zeros(M, bool)
+    s = BodyState(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+    fast = dataclasses.replace(s, velocity=np.array([lim.max_velocity_jump + 1.0, 0.0, 0.0]))
+    counts = FailureCounters()
+    strict = dataclasses.replace(lim, min_outlier_tracks=2)
+    assert counts.check(fast, s, 1.0, 100, 0, updates, used, strict, settled=False) is None
+    assert (counts.blind, counts.outliers) == (1, 0)  # the outlier test waits too
+    assert counts.check(fast, s, 1.0, 100, 0, updates, used, strict,
+                        settled=True) is Failure.VELOCITY
+    assert (counts.blind, counts.outliers) == (2, 1)
+    for _ in range(strict.max_outlier_frames):
+        failure = counts.check(s, s, 1.0, 100, 50, updates, used, strict, settled=True)
+    assert failure is Failure.OUTLIERS and counts.blind == 0
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from vio_frames import frames_ate, process_frames
 
 from uavcal_jax.data.euroc import read_euroc
-from uavcal_jax.data.euroc_rig import euroc_T_C0C1
+from uavcal_jax.data.euroc_rig import EUROC_CAM0_T_BS, EUROC_CAM1_T_BS
 from uavcal_jax.geometry import so3
 from uavcal_jax.vio import ate
 from uavcal_jax.vio.initialize import (
@@ -109,7 +109,7 @@ def test_imu_gap_resets_and_continues(micro):
 
 def test_stereo_triangulation_matches_opencv():
     rng = np.random.default_rng(0)
-    T = euroc_T_C0C1()
+    T = np.linalg.inv(EUROC_CAM0_T_BS) @ EUROC_CAM1_T_BS  # cam1 in cam0
     P_left = np.column_stack([rng.uniform(-2, 2, 50), rng.uniform(-1.5, 1.5, 50),
                               rng.uniform(0.5, 8, 50)])
     P_right = (P_left - T[:3, 3]) @ T[:3, :3]  # X1 = R^T (X0 - t)

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from vio_dense import stacked_residuals
 
 from uavcal_jax.imu import EUROC_ADIS16448, preintegrate
 from uavcal_jax.vio import (
@@ -24,7 +25,6 @@ from uavcal_jax.vio import (
     normal_equations,
     retract,
     slide_imu_samples,
-    stacked_residuals,
 )
 from uavcal_jax.vio.normal import solve_step
 from uavcal_jax.vio.residuals import prior_residual

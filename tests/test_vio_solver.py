@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from vio_dense import stacked_residuals
 
 from uavcal_jax.vio import (
     CostConfig,
@@ -18,7 +19,6 @@ from uavcal_jax.vio import (
     normal_equations,
     retract,
     robust,
-    stacked_residuals,
 )
 from uavcal_jax.vio.normal import solve_linear, solve_step
 from uavcal_jax.vio.synthetic import SyntheticConfig, perturb, synthetic_window

@@ -7,7 +7,8 @@ import numpy as np
 
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.vio import ate
-from uavcal_jax.vio.estimator import FrameEstimate, StereoVio
+from uavcal_jax.vio.estimator import StereoVio
+from uavcal_jax.vio.frame_estimate import FrameEstimate
 from uavcal_jax.vio.run import VioResult, stereo_pairs
 
 

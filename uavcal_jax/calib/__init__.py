@@ -23,7 +23,6 @@ from uavcal_jax.calib.baselines import (
     least_squares_offset,
     least_squares_windows,
     mean_offset,
-    mean_offset_predictions,
     sequence_offset,
 )
 from uavcal_jax.calib.batch import frames_to_model, model_batch
@@ -46,7 +45,7 @@ from uavcal_jax.calib.inject import (
 )
 from uavcal_jax.calib.loss import calibration_loss, loss_terms
 from uavcal_jax.calib.metrics import calibration_metrics, metric_sums, metrics_from_sums
-from uavcal_jax.calib.model import Calibrator, build_model
+from uavcal_jax.calib.model import Calibrator
 from uavcal_jax.calib.train import (
     CalibState,
     create_train_state,
@@ -70,7 +69,6 @@ __all__ = [
     "LossConfig",
     "ModelConfig",
     "TrainConfig",
-    "build_model",
     "calibration_loss",
     "calibration_metrics",
     "create_train_state",
@@ -85,7 +83,6 @@ __all__ = [
     "least_squares_windows",
     "loss_terms",
     "mean_offset",
-    "mean_offset_predictions",
     "metric_sums",
     "metrics_from_sums",
     "model_batch",

@@ -55,7 +55,6 @@ __all__ = [
     "least_squares_offset",
     "least_squares_windows",
     "mean_offset",
-    "mean_offset_predictions",
     "sequence_offset",
 ]
 
@@ -66,12 +65,6 @@ def mean_offset(train_offsets, mask=None) -> jax.Array:
     o = jnp.asarray(train_offsets).reshape(-1, jnp.shape(train_offsets)[-1])
     w = jnp.ones(o.shape[0], o.dtype) if mask is None else jnp.asarray(mask, o.dtype).reshape(-1)
     return jnp.sum(o * w[:, None], axis=0) / jnp.sum(w)
-
-
-def mean_offset_predictions(train_offsets, n_windows: int, mask=None) -> jax.Array:
-    """The mean-offset baseline's prediction for ``n_windows`` windows, ``(n_windows, C)``."""
-    m = mean_offset(train_offsets, mask)
-    return jnp.broadcast_to(m, (int(n_windows), m.shape[-1]))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -79,8 +79,7 @@ from uavcal_jax.data.color import LUMA_WEIGHTS
 from uavcal_jax.geometry import so3
 
 __all__ = ["GRAY_WEIGHTS", "MOTION_KEYS", "NORMALIZATION", "NORMALIZATION_NAMES", "Calibrator",
-           "build_model", "compose_intervals", "patchify", "rotation_residuals",
-           "split_prediction"]
+           "compose_intervals", "patchify", "rotation_residuals", "split_prediction"]
 
 F32 = jnp.float32
 
@@ -423,8 +422,3 @@ def _window_mean(imu: jax.Array, mask: jax.Array) -> jax.Array:
     """``(B, C)`` each window's mean IMU sample over its real slots."""
     w = mask.astype(F32)[..., None]
     return jnp.sum(imu * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
-
-
-def build_model(config: ModelConfig) -> Calibrator:
-    """The :class:`Calibrator` of ``config``."""
-    return Calibrator(config)

@@ -11,7 +11,6 @@ results, with its other inputs under ``"command"``: ``RUN/config.json`` (train),
 from __future__ import annotations
 
 import argparse
-import json
 import warnings
 from pathlib import Path
 
@@ -264,6 +263,7 @@ def _rotation_source(window):
 def run_train(args) -> int:
     from uavcal_jax.calib.data import load_windows
     from uavcal_jax.calib.trials import run_trials, validation_trials
+    from uavcal_jax.data.calib_result import write_calib_result
 
     run = train_configs(args)
     enable_compilation_cache()
@@ -273,10 +273,9 @@ def run_train(args) -> int:
                          resume=args.resume, progress=not args.json,
                          stop_after=args.stop_after,
                          inputs=_inputs(args, "data", "out", "preset", "set", "resume"))
-    summary = {"run": str(out), "validation": run.loop.validation, "protocol":
-               run.injection.protocol, "seeds": run.train.seeds, "trials": results,
-               "mean_std": _aggregate([r["best"] for r in results])}
-    (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+    summary = write_calib_result(out, validation=run.loop.validation,
+                                 protocol=run.injection.protocol, seeds=run.train.seeds,
+                                 trials=results, mean_std=_aggregate([r["best"] for r in results]))
     if args.json:
         print_json(summary)
     else:

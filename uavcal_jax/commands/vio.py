@@ -12,6 +12,7 @@ from uavcal_jax.config import apply_overrides, read_config, write_config
 from uavcal_jax.data.offset_json import read_offset_json
 from uavcal_jax.data.read import read_sequence
 from uavcal_jax.data.tum import write_tum
+from uavcal_jax.data.vio_frames import write_frames_csv
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 DESCRIPTION = """\
@@ -104,7 +105,7 @@ def _recorded_inputs(path: Path) -> dict:
 
 
 def run(args) -> int:
-    from uavcal_jax.vio.run import run_vio, write_frames_csv
+    from uavcal_jax.vio.run import run_vio
 
     if not args.sequence.exists():
         raise DataError(f"{args.sequence}: no such file or folder")
@@ -124,7 +125,8 @@ def run(args) -> int:
         raise DataError(f"{args.sequence}: the VIO never initialised (no frame had "
                         f"{result.config.min_init_landmarks} stereo corners)")
     write_tum(args.out, traj)
-    frames_csv = write_frames_csv(args.out.with_name(args.out.name + ".frames.csv"), result)
+    frames_csv = write_frames_csv(args.out.with_name(args.out.name + ".frames.csv"),
+                                  result.frame_rows())
     config_json = write_config(
         args.out.with_name(args.out.name + ".config.json"), result.config,
         **{INPUTS_KEY: {"sequence": str(args.sequence), "out": str(args.out),

@@ -29,7 +29,6 @@ __all__ = [
     "EUROC_IMU_RATE_HZ",
     "EUROC_RATE_HZ",
     "EUROC_RESOLUTION",
-    "euroc_T_C0C1",
     "euroc_calibration",
     "euroc_camera",
     "euroc_imu_mounting",
@@ -91,12 +90,6 @@ def euroc_camera(index: int = 0, dtype=None) -> PinholeRadtan:
     """EuRoC's cam0/cam1 lens as a JAX camera model (parameters of ``dtype``, see
     :meth:`PinholeRadtan.create`)."""
     return from_calibration(euroc_calibration(index), dtype)
-
-
-def euroc_T_C0C1() -> np.ndarray:
-    """(4, 4) float64 pose of cam1 in cam0's frame: ``inv(T_BS0) @ T_BS1`` (maps cam1 points
-    to cam0)."""
-    return np.linalg.inv(EUROC_CAM0_T_BS) @ EUROC_CAM1_T_BS
 
 
 def euroc_imu_mounting(pitch_deg: float = EUROC_CAMERA_PITCH_DEG) -> np.ndarray:

@@ -15,14 +15,11 @@ from uavcal_jax.data.rosbag import is_bag, read_rosbag
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.errors import DataError
 
-#: The ``format`` names :func:`read_sequence` returns.
-RECORDING_FORMATS = ("euroc", "rosbag")
-
 
 def read_sequence(path: str | Path, *, strict: bool = False, imu_topic: str | None = None,
                   image_topics: list[str] | None = None) -> tuple[Sequence, str]:
-    """Read the recording at ``path``; returns ``(sequence, format)``, format one of
-    :data:`RECORDING_FORMATS`.
+    """Read the recording at ``path``; returns ``(sequence, format)``, format ``"euroc"`` or
+    ``"rosbag"``.
 
     Args:
         path: an EuRoC/ASL folder (holding ``mav0``, or ``mav0`` itself), a ROS 1 ``.bag``

@@ -5,7 +5,7 @@ sets, augmentation, metrics, training, the run folder and export.
 """
 
 from uavcal_jax.detect.anchors import anchor_metrics, check_anchors, kmeans_anchors
-from uavcal_jax.detect.boxes import bbox_ciou, box_iou, xywh_to_xyxy, xyxy_to_xywh
+from uavcal_jax.detect.boxes import bbox_ciou, box_iou
 from uavcal_jax.detect.config import (
     EVAL_PREDICT,
     SERVE_PREDICT,
@@ -49,7 +49,5 @@ __all__ = [
     "nms",
     "postprocess",
     "predict",
-    "xywh_to_xyxy",
-    "xyxy_to_xywh",
     "yolo_loss",
 ]

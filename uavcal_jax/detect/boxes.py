@@ -13,18 +13,6 @@ import jax
 import jax.numpy as jnp
 
 
-def xywh_to_xyxy(b):
-    b = jnp.asarray(b)
-    xy, wh = b[..., :2], b[..., 2:4]
-    return jnp.concatenate([xy - wh / 2, xy + wh / 2], axis=-1)
-
-
-def xyxy_to_xywh(b):
-    b = jnp.asarray(b)
-    p1, p2 = b[..., :2], b[..., 2:4]
-    return jnp.concatenate([(p1 + p2) / 2, p2 - p1], axis=-1)
-
-
 def box_area(b):
     """Area of xyxy boxes (negative extents clip to 0)."""
     return jnp.clip(b[..., 2] - b[..., 0], 0) * jnp.clip(b[..., 3] - b[..., 1], 0)
@@ -40,11 +28,6 @@ def box_iou(a, b):
     inter = wh[..., 0] * wh[..., 1]
     union = box_area(a) + box_area(b) - inter
     return inter / jnp.maximum(union, 1e-12)
-
-
-def bbox_iou_aligned(a, b, xywh: bool = True, eps: float = 1e-7):
-    """Element-wise IoU of matching boxes ``a (..., 4)``, ``b (..., 4)``."""
-    return _iou_terms(a, b, xywh, eps)[0]
 
 
 def _iou_terms(a, b, xywh, eps):

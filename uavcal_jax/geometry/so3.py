@@ -1,4 +1,4 @@
-"""SO(3) helpers: hat/vee, exponential and logarithm, right Jacobian and its inverse.
+"""SO(3) helpers: hat, exponential and logarithm, right Jacobian and its inverse.
 
 All functions are pure ``jax.numpy``, broadcast over leading axes (vectors ``(..., 3)``,
 matrices ``(..., 3, 3)``), work in float32 and float64, and are differentiable everywhere
@@ -27,12 +27,10 @@ import jaxlie
 
 __all__ = [
     "hat",
-    "vee",
     "exp",
     "log",
     "right_jacobian",
     "right_jacobian_inv",
-    "left_jacobian",
     "from_quaternion",
     "to_quaternion",
     "series_coefficients",
@@ -54,18 +52,6 @@ def hat(v: jnp.ndarray) -> jnp.ndarray:
             jnp.stack([-y, x, zero], axis=-1),
         ],
         axis=-2,
-    )
-
-
-def vee(m: jnp.ndarray) -> jnp.ndarray:
-    """Inverse of :func:`hat`: the vector ``(..., 3)`` of a skew-symmetric ``(..., 3, 3)``.
-
-    Uses the antisymmetric part, so ``vee(M) == vee((M - M^T) / 2)``.
-    """
-    m = jnp.asarray(m)
-    return 0.5 * jnp.stack(
-        [m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]],
-        axis=-1,
     )
 
 
@@ -187,8 +173,3 @@ def right_jacobian_inv(phi: jnp.ndarray) -> jnp.ndarray:
     phi = jnp.asarray(phi)
     (d,) = series_coefficients(jnp.sum(phi * phi, axis=-1), ("d",))
     return _i_plus(phi, jnp.full_like(d, 0.5), d)
-
-
-def left_jacobian(phi: jnp.ndarray) -> jnp.ndarray:
-    """Left Jacobian ``Jl(phi) = Jr(-phi)``: ``exp(phi + d) ~= exp(Jl(phi) d) exp(phi)``."""
-    return right_jacobian(-jnp.asarray(phi))

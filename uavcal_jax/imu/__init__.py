@@ -6,8 +6,8 @@ Public API::
                  bias_covariance) -> Preintegrated
     bias_correct(pim, bias_gyro, bias_accel) -> (delta_R, delta_v, delta_p)
     predict(state_i, pim, bias) -> NavState
-    imu_residual / imu_residual_whitened / residual_covariance / imu_cost
-    interval_samples / interval_batch / interval_samples_padded  (cut [t_i, t_j] from a stream)
+    imu_residual / imu_residual_whitened / residual_covariance
+    interval_samples / interval_batch  (cut [t_i, t_j] from a stream)
     add_offset / remove_offset
     ImuNoise, EUROC_ADIS16448  (the noise model, also what the readers and the simulator use)
 
@@ -19,7 +19,6 @@ from uavcal_jax.imu.interval import (
     interval_batch,
     interval_capacity,
     interval_samples,
-    interval_samples_padded,
 )
 from uavcal_jax.imu.noise import EUROC_ADIS16448, ImuNoise
 from uavcal_jax.imu.offset import add_offset, remove_offset, split_offset
@@ -33,7 +32,6 @@ from uavcal_jax.imu.preintegration import (
 from uavcal_jax.imu.residual import (
     ImuBias,
     NavState,
-    imu_cost,
     imu_residual,
     imu_residual_whitened,
     predict,
@@ -51,13 +49,11 @@ __all__ = [
     "Preintegrated",
     "add_offset",
     "bias_correct",
-    "imu_cost",
     "imu_residual",
     "imu_residual_whitened",
     "interval_batch",
     "interval_capacity",
     "interval_samples",
-    "interval_samples_padded",
     "predict",
     "preintegrate",
     "remove_offset",

@@ -12,8 +12,7 @@ to exactly ``t_end - t_start`` and an interval whose ends are sample times gives
 GTSAM loop. Intervals must lie inside the stream: ``t_0 <= t_start < t_end <= t_last``.
 
 Times may be int64 nanoseconds (EuRoC; durations are then computed exactly in integers and
-converted to seconds) or float seconds. The NumPy functions validate eagerly;
-:func:`interval_samples_padded` is the ``jit``/``vmap``-able form with a fixed capacity.
+converted to seconds) or float seconds. The functions validate eagerly.
 """
 
 from __future__ import annotations
@@ -21,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax.errors import DataError
@@ -30,7 +28,6 @@ __all__ = [
     "ImuInterval",
     "interval_samples",
     "interval_batch",
-    "interval_samples_padded",
     "interval_capacity",
 ]
 
@@ -171,47 +168,3 @@ def interval_batch(t, gyro=None, accel=None, starts=None, ends=None, capacity: i
         n = iv.dt.shape[0]
         dt[i, :n], g[i, :n], a[i, :n], mask[i, :n] = iv.dt, iv.gyro, iv.accel, True
     return ImuInterval(dt=dt, gyro=g, accel=a, mask=mask, complete=np.ones(M, bool))
-
-
-def interval_samples_padded(t, gyro, accel, t_start, t_end, capacity: int) -> ImuInterval:
-    """:func:`interval_samples` in ``jax.numpy`` with a fixed ``capacity`` (jit/vmap-able).
-
-    ``t`` (N,) float seconds (use times relative to the stream start: absolute EuRoC seconds
-    do not fit float32) or int64 nanoseconds (x64 only); ``t_start``, ``t_end`` scalars in the
-    same unit (vmap over them for many intervals). Segments past ``capacity`` are dropped and
-    ``complete`` is ``False``; ends outside the stream are clamped to it and also give
-    ``complete == False``. Differentiable with respect to the samples (and float ends).
-    """
-    t = jnp.asarray(t)
-    gyro = jnp.asarray(gyro)
-    accel = jnp.asarray(accel)
-    integer = jnp.issubdtype(t.dtype, jnp.integer)
-    n = t.shape[0]
-    inside = (t_start >= t[0]) & (t_end <= t[-1]) & (t_end > t_start)
-    ts = jnp.clip(t_start, t[0], t[-1])
-    te = jnp.clip(t_end, ts, t[-1])
-    k = jnp.clip(jnp.searchsorted(t, ts, side="right") - 1, 0, n - 2)
-    idx = k + jnp.arange(capacity)
-    idx_c = jnp.clip(idx, 0, n - 1)
-    nxt_c = jnp.clip(idx + 1, 0, n - 1)
-    first = jnp.arange(capacity) == 0
-    seg_start = jnp.where(first, ts, t[idx_c])
-    seg_end = jnp.minimum(t[nxt_c], te)
-    live = (idx + 1 <= n - 1) & (seg_start < te)
-    span = seg_end - seg_start
-    if integer:
-        dt = jnp.where(live, span, 0).astype(gyro.dtype) * 1e-9
-        frac = (ts - t[k]).astype(gyro.dtype) / (t[k + 1] - t[k]).astype(gyro.dtype)
-    else:
-        dt = jnp.where(live, span, 0.0).astype(gyro.dtype)
-        frac = ((ts - t[k]) / (t[k + 1] - t[k])).astype(gyro.dtype)
-    g0 = gyro[k] + frac * (gyro[k + 1] - gyro[k])
-    a0 = accel[k] + frac * (accel[k + 1] - accel[k])
-    g = jnp.where(first[:, None], g0[None], gyro[idx_c])
-    a = jnp.where(first[:, None], a0[None], accel[idx_c])
-    mask = live & (dt > 0)
-    g = jnp.where(mask[:, None], g, 0.0)
-    a = jnp.where(mask[:, None], a, 0.0)
-    last = idx[-1] + 1
-    fits = (last > n - 1) | (t[jnp.clip(last, 0, n - 1)] >= te)
-    return ImuInterval(dt=dt, gyro=g, accel=a, mask=mask, complete=fits & inside)

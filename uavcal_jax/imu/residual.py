@@ -45,7 +45,6 @@ __all__ = [
     "imu_residual",
     "residual_covariance",
     "imu_residual_whitened",
-    "imu_cost",
 ]
 
 @dataclasses.dataclass(frozen=True)
@@ -190,10 +189,3 @@ def imu_residual_whitened(state_i: NavState, bias_i, state_j: NavState, bias_j,
         cov = cov + jitter * jnp.eye(15, dtype=cov.dtype)
     L = jnp.linalg.cholesky(cov)
     return jax.scipy.linalg.solve_triangular(L, r[..., None], lower=True)[..., 0]
-
-
-def imu_cost(state_i: NavState, bias_i, state_j: NavState, bias_j, pim: Preintegrated,
-             gravity=GRAVITY_W) -> jax.Array:
-    """Half the squared Mahalanobis norm of the residual, (...)."""
-    e = imu_residual_whitened(state_i, bias_i, state_j, bias_j, pim, gravity)
-    return 0.5 * jnp.sum(e * e, axis=-1)

@@ -43,6 +43,7 @@ from uavcal_jax.sim.config import CAMERAS, SimConfig, sensor_model
 from uavcal_jax.sim.follow_targets import follow_request
 from uavcal_jax.sim.scene_build import make_scene
 from uavcal_jax.sim.sensor import SensorModel
+from uavcal_jax.sim.target_boxes import target_boxes
 
 __all__ = ["CameraEffects", "body_poses", "camera_effects", "frame_times",
            "make_frame_renderer", "render_frames", "sub_exposure_poses"]
@@ -125,7 +126,7 @@ def make_frame_renderer(color: str, n_targets: int, effects: CameraEffects = Cam
         out = render.render_batch(scn, None, T_WC, t, color=color, rays=bundle)
         img8 = expose(out.image, out.depth, bundle, cam, rel, keys)
         depth_mm = depth_to_millimetres(out.depth, jnp)
-        boxes, visible = render.target_boxes(out.object_id, n_targets)
+        boxes, visible = target_boxes(out.object_id, n_targets)
         return img8, depth_mm, boxes, visible
 
     def batch(scn, bundle0, bundle1, cam0, cam1, T0, T1, t, rel0, rel1, frame, key):

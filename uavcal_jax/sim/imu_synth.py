@@ -43,7 +43,6 @@ __all__ = [
     "SyntheticImu",
     "TurnOnBias",
     "ground_truth_from_trajectory",
-    "ideal_imu",
     "imu_noise",
     "imu_timestamps",
     "synthesize_imu",
@@ -98,11 +97,6 @@ def _measurements(state: TrajectoryState) -> tuple[np.ndarray, np.ndarray]:
     accel = np.einsum("...ji,...j->...i", state.rotation,
                       state.acceleration - np.asarray(GRAVITY_W))
     return state.angular_velocity_body, accel
-
-
-def ideal_imu(traj: Trajectory, t) -> tuple[np.ndarray, np.ndarray]:
-    """Exact ``(gyro, accel)`` at times ``t`` (float seconds), each ``t.shape + (3,)``."""
-    return _measurements(traj.state(t))
 
 
 def imu_noise(n: int, dt: float, noise: ImuNoise, seed: int = 0,

@@ -20,7 +20,7 @@ import numpy as np
 
 from uavcal_jax.data.euroc_rig import euroc_imu_mounting
 
-__all__ = ["optical_axis_elevation_deg", "pitched_rig", "rig_pitch_deg"]
+__all__ = ["pitched_rig", "rig_pitch_deg"]
 
 
 def rig_pitch_deg(T_BS: np.ndarray, R_QB: np.ndarray | None = None) -> float:
@@ -55,11 +55,3 @@ def pitched_rig(T_BS: Sequence[np.ndarray], pitch_deg: float | None,
     turn = np.eye(4)
     turn[:3, :3] = R_QB.T @ _rot_y(delta) @ R_QB
     return [turn @ T for T in mats]
-
-
-def optical_axis_elevation_deg(R_WB: np.ndarray, T_BS: np.ndarray) -> np.ndarray:
-    """Elevation of a camera's optical axis above the world's horizontal plane, degrees
-    (negative: below the horizon), for body orientations ``R_WB`` (..., 3, 3) and the camera's
-    ``T_BS`` (4, 4)."""
-    axis = np.asarray(R_WB, dtype=np.float64) @ np.asarray(T_BS, dtype=np.float64)[:3, 2]
-    return np.degrees(np.arcsin(np.clip(axis[..., 2], -1.0, 1.0)))

@@ -11,8 +11,8 @@ per-face light (ambient + two directional lights, Lambert).
 All arithmetic is float32. :func:`render` is pure and jit-able; called with a concrete camera
 it reuses cached rays (the undistortion runs once per lens), and with a traced camera it
 computes them in the graph (XLA hoists that out of a ``vmap`` over poses). For throughput use
-:func:`make_renderer` (or :func:`render_batch`): one compiled function per camera, resolution,
-colour mode and batch size, several frames per call.
+:func:`render_batch`: several frames per call, one compilation per resolution, colour mode and
+batch size.
 
 One module, over 450 lines: ray bundles, per-tile culling, slab intersection and shading are
 the stages of one jitted function and share its private array layout (tiles of packed rays);
@@ -40,11 +40,9 @@ __all__ = [
     "DEFAULT_TILE",
     "RayBundle",
     "camera_rays",
-    "make_renderer",
     "render",
     "ray_bundle",
     "render_batch",
-    "target_boxes",
 ]
 
 #: Pixels per tile (rows, cols): boxes are culled per tile.
@@ -462,7 +460,7 @@ def render_batch(
     """Render ``B`` frames: ``T_WC`` (B, 4, 4), ``t`` (B,) -> RenderOut with leading ``B``.
 
     Frames are rendered one after the other (``lax.map``), not ``vmap``-ed: the per-tile
-    culling loops and gathers are faster unbatched. Jit it, or use :func:`make_renderer`."""
+    culling loops and gathers are faster unbatched."""
     bundle = ray_bundle(cam if rays is None else rays)
     return _render_frames_jit(scene, bundle, jnp.asarray(T_WC), jnp.asarray(t), color)
 
@@ -473,49 +471,3 @@ def _render_frames(scene, bundle, T_WC, t, color):
 
 
 _render_frames_jit = jax.jit(_render_frames, static_argnames=("color",))
-
-
-def make_renderer(cam: camera_model.PinholeRadtan, color: str = "rgb", tile=DEFAULT_TILE):
-    """A jitted ``fn(scene, T_WC (B, 4, 4), t (B,)) -> RenderOut`` (leading ``B``) for one
-    lens. The rays are computed once and passed in as arguments (not baked-in constants, which
-    XLA would spend seconds constant-folding). Compiles once per scene shape and ``B``."""
-    bundle = jax.tree_util.tree_map(jnp.asarray, ray_bundle(cam, tile))
-
-    @jax.jit
-    def batched(scene: Scene, bundle: RayBundle, T_WC, t):
-        return _render_frames(scene, bundle, T_WC, t, color)
-
-    def fn(scene: Scene, T_WC, t):
-        return batched(scene, bundle, jnp.asarray(T_WC, jnp.float32), jnp.asarray(t, jnp.float32))
-
-    return fn
-
-
-def target_boxes(object_id: jax.Array, n_targets: int) -> tuple[jax.Array, jax.Array]:
-    """Tight boxes around every target's visible pixels.
-
-    Args:
-        object_id: (H, W) int32 from :func:`render` (a leading batch dimension is allowed).
-        n_targets: number of targets (static).
-
-    Returns:
-        boxes (n, 4) float32 ``x_min, y_min, x_max + 1, y_max + 1`` in pixels (zeros where
-        nothing is visible) and visible pixel counts (n,) int32.
-    """
-    if object_id.ndim == 3:
-        return jax.vmap(lambda o: target_boxes(o, n_targets))(object_id)
-    H, W = object_id.shape
-    if n_targets == 0:
-        return jnp.zeros((0, 4), jnp.float32), jnp.zeros((0,), jnp.int32)
-    ids = jnp.arange(n_targets, dtype=jnp.int32)
-    mask = object_id[None, :, :] == ids[:, None, None]  # (n, H, W)
-    rows = jnp.any(mask, axis=2)  # (n, H)
-    cols = jnp.any(mask, axis=1)  # (n, W)
-    count = jnp.sum(mask, axis=(1, 2), dtype=jnp.int32)
-    y0 = jnp.argmax(rows, axis=1)
-    y1 = H - jnp.argmax(rows[:, ::-1], axis=1)
-    x0 = jnp.argmax(cols, axis=1)
-    x1 = W - jnp.argmax(cols[:, ::-1], axis=1)
-    boxes = jnp.stack([x0, y0, x1, y1], axis=1).astype(jnp.float32)
-    boxes = jnp.where((count > 0)[:, None], boxes, 0.0)
-    return boxes, count

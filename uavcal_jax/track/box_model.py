@@ -24,20 +24,19 @@ import numpy as np
 from uavcal_jax.geometry.camera import PinholeRadtan, pixels_to_normalized, project_normalized
 from uavcal_jax.track.locate import LocateConfig, robust_depth
 
-__all__ = ["CANDIDATE_HEADINGS", "DEFAULT_LOCATE", "border_covariance", "box_centre",
-           "box_centre_candidates"]
+__all__ = ["CANDIDATE_HEADINGS", "DEFAULT_LOCATE", "border_covariance", "box_centre_candidates"]
 
 
 #: The headings :func:`box_centre_candidates` tries, radians: a box is symmetric, so
 #: ``[0, pi)`` in 16 steps of 11.25 degrees.
 CANDIDATE_HEADINGS = np.arange(16) * (np.pi / 16)
-#: Fixed-point steps of :func:`box_centre` (each moves the centre by the residual; 3 reach a
+#: Fixed-point steps of :func:`_fit_centre` (each moves the centre by the residual; 3 reach a
 #: millimetre on a car 5-10 m away).
 _CENTRE_STEPS = 6
 #: At most this many samples a side model :func:`box_depth`'s grid (a box's faces are planes,
 #: so a coarse grid gives their robust depth as the fine one does, at a tenth of the cost).
 _MODEL_SAMPLES = 8
-#: The largest relative miss (of the front point's range) of a settled :func:`box_centre` fit.
+#: The largest relative miss (of the front point's range) of a settled :func:`_fit_centre` fit.
 _CENTRE_TOLERANCE = 0.01
 #: How far past the image's largest normalised radius a box corner may lie before it is drawn
 #: in (:func:`_seen_box`).
@@ -178,20 +177,6 @@ def box_centre_candidates(front: jax.Array, T_WC: jax.Array, half_size: jax.Arra
     diagonal = jnp.sum((box[2:] - box[:2]) ** 2)
     mismatch = jnp.sum((lo - box[:2]) ** 2 + (hi - box[2:]) ** 2, axis=-1) / diagonal
     return centres @ R_WC.T + p_WC, mismatch
-
-
-@functools.partial(jax.jit, static_argnames="config")
-def box_centre(front: jax.Array, T_WC: jax.Array, half_size: jax.Array, yaw: jax.Array,
-               cam: PinholeRadtan, config: LocateConfig = DEFAULT_LOCATE) -> jax.Array:
-    """The centre (3,) world metres of an upright box seen with a known heading ``yaw`` ()
-    radians (the other arguments as :func:`box_centre_candidates`)."""
-    R_WC, p_WC = T_WC[:3, :3], T_WC[:3, 3]
-    front_C = R_WC.T @ (front - p_WC)
-    rotation = R_WC.T @ _yaw_matrix(jnp.asarray(yaw, front_C.dtype))
-    limit = _RADIUS_MARGIN * _image_radius(cam)
-    centre = _fit_centre(front_C, rotation, jnp.asarray(half_size, front_C.dtype), cam, limit,
-                         config)
-    return R_WC @ centre + p_WC
 
 
 def border_covariance(box, resolution, R_WC, half_size, margin: float = 1.0) -> np.ndarray:

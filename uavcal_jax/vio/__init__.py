@@ -58,7 +58,6 @@ from uavcal_jax.vio.reference import JaxoptSolver
 from uavcal_jax.vio.residuals import (
     factor_residuals,
     flat_residual,
-    stacked_residuals,
     window_cost,
 )
 from uavcal_jax.vio.solver import (
@@ -136,7 +135,6 @@ __all__ = [
     "retract",
     "slide_imu_samples",
     "solve_differentiable",
-    "stacked_residuals",
     "structured_solve",
     "window_cost",
 ]

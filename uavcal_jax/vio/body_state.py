@@ -1,5 +1,5 @@
 """The body state at one instant, on the host: the one shape the estimator predicts, solves,
-resets to and publishes (:attr:`~uavcal_jax.vio.estimator.FrameEstimate.state`).
+resets to and publishes (:attr:`~uavcal_jax.vio.frame_estimate.FrameEstimate.state`).
 
 Frames: the body is the IMU frame; the world frame is gravity-aligned (z up), its origin and
 yaw fixed at initialisation. NumPy float64 throughout; :meth:`BodyState.keyframe` hands it to

@@ -122,7 +122,7 @@ class FrontendConfig:
             the consensus of the rest when the prediction explains the rest: a moving object
             filling the view (a followed car the detector does not box, seen 3 m ahead from
             a low flight) outvotes the static scene, and the window then sees only it
-            (:func:`uavcal_jax.vio.frontend.imu_consistent_inliers`).
+            (:func:`uavcal_jax.vio.match_checks.imu_consistent_inliers`).
         imu_consensus_px: the consensus is not explained when its tracks' median distance to
             their predicted epipolar lines exceeds this, pixels at :data:`NOMINAL_FOCAL_PX`...
         imu_consensus_ratio: ... and the rest's median is below this fraction of it.

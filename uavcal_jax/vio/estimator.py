@@ -9,7 +9,7 @@ machine over two phases.
   under a gauge prior. The first start is levelled by the accelerometer and at rest
   (:mod:`uavcal_jax.vio.initialize`), so the first frame has a pose; ``init_frames`` frames
   later the start is checked against gravity and velocity aligned from those frames' stereo
-  odometry and IMU (:mod:`uavcal_jax.vio.motion_init`) and the window re-opened there
+  odometry and IMU (:mod:`uavcal_jax.vio.start_check`) and the window re-opened there
   (reason ``moving``) when it was off (a body accelerating at the start). After a reset the
   estimator coasts on the IMU (reason ``reinit``) until the frames since align, and opens
   there: a re-initialisation while moving, no hover needed.
@@ -22,20 +22,15 @@ machine over two phases.
   fills, refines the gyro bias from the keyframes' rotations.
 
 A frame without features still enters the window with its IMU interval only. Output: one
-:class:`FrameEstimate` per frame; :func:`~uavcal_jax.vio.run.run_vio` runs a whole sequence.
-The back end runs under ``jax.enable_x64(True)`` (switched on around its calls).
-
-One module, over 450 lines: one estimator's state machine, whose phases (no window, window,
-reset) share the window, the IMU stream and the failure counters; the numerics each phase
-calls live in the modules named above.
+:class:`~uavcal_jax.vio.frame_estimate.FrameEstimate` per frame;
+:func:`~uavcal_jax.vio.run.run_vio` runs a whole sequence. The back end runs under
+``jax.enable_x64(True)`` (switched on around its calls).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -45,114 +40,24 @@ from uavcal_jax.data.sequence import CameraCalibration, ImuCalibration, ImuData
 from uavcal_jax.errors import DataError
 from uavcal_jax.vio.body_state import BodyState
 from uavcal_jax.vio.config import VioConfig, resolve_camera
-from uavcal_jax.vio.failure import (
-    Failure,
-    blind_frames,
-    check_failure,
-    cost_excess_frames,
-    outlier_frames,
-    rejected_observations,
-)
+from uavcal_jax.vio.failure import Failure, FailureCounters
+from uavcal_jax.vio.frame_estimate import FlowSeed, FrameEstimate, TrackedFrame
 from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures
-from uavcal_jax.vio.imu_slice import IMU_GAP_PERIODS, ImuGap, ImuStream
+from uavcal_jax.vio.imu_slice import ImuGap, ImuStream
 from uavcal_jax.vio.initialize import gravity_aligned_rotation
 from uavcal_jax.vio.keyframes import body_to_camera_rotation, keyframe_decision
-from uavcal_jax.vio.motion_init import initialize_moving
 from uavcal_jax.vio.sliding_window import SlidingWindow
 from uavcal_jax.vio.slots import stereo_depths
 from uavcal_jax.vio.stage_timer import StageTimer
+from uavcal_jax.vio.start_check import StartCheck
 from uavcal_jax.vio.window import CalibParams, WindowProblem, WindowState
 
-__all__ = ["PRUNE_DEPTH_FRACTION", "STATUSES", "FlowSeed", "FrameEstimate", "StereoVio",
-           "TrackedFrame"]
+__all__ = ["PRUNE_DEPTH_FRACTION", "StereoVio"]
 
-#: ``FrameEstimate.status`` values.
-STATUSES = ("waiting", "initialized", "tracking", "coasting", "reset", "no_imu")
 #: After each solve, landmarks whose depth in their anchor falls below ``min_stereo_depth``
 #: times this leave the window (:func:`~uavcal_jax.vio.window_ops.prune`); new landmarks start
 #: at ``min_stereo_depth`` or deeper.
 PRUNE_DEPTH_FRACTION = 0.5
-
-
-class FlowSeed(NamedTuple):
-    """What the back end last published for the front end (:meth:`StereoVio.flow_seed`).
-
-    Attributes:
-        bias_gyro: (3,) rad/s, the newest gyro bias (zero before the first pose).
-        velocity_body: (3,) m/s, the newest tracked frame's velocity in its body frame, or
-            ``None`` (before the first solved window, after a reset, while coasting).
-    """
-
-    bias_gyro: np.ndarray
-    velocity_body: np.ndarray | None
-
-
-@dataclasses.dataclass(frozen=True)
-class FrameEstimate:
-    """The estimate at one stereo frame.
-
-    Attributes:
-        t_ns: frame time, ns.
-        state: the :class:`~uavcal_jax.vio.body_state.BodyState` of the IMU (body) frame, or
-            ``None`` before the first initialisation and outside the IMU stream. Its fields
-            read through ``rotation`` (3, 3) body-to-world, ``position`` (3,) m,
-            ``velocity`` (3,) m/s, ``bias_gyro`` (3,) rad/s, ``bias_accel`` (3,) m/s^2 (NaN
-            without a state) and ``has_pose``.
-        status: one of :data:`STATUSES`: ``waiting`` (not initialised, no pose), ``initialized``
-            (this frame opened a window), ``tracking`` (solved with landmarks), ``coasting``
-            (IMU propagation: no landmarks, or waiting to re-initialise after a reset),
-            ``reset`` (a failure check fired at this frame; its pose is the IMU prediction),
-            ``no_imu`` (outside the IMU stream).
-        reason: why it reset (a :class:`~uavcal_jax.vio.failure.Failure` or
-            :class:`~uavcal_jax.vio.imu_slice.ImuGap` value), or why it is a keyframe, or ``""``.
-        keyframe: the frame stayed in the window as a keyframe.
-        tracked, stereo: the front end's corners and stereo matches.
-        landmarks: landmarks observed in the window after the solve.
-        iterations: solver iterations.  cost: the solved window cost.
-        rows: residual rows in use in the window (``cost / rows`` near 0.5 when consistent).
-        timings: milliseconds (:class:`~uavcal_jax.vio.stage_timer.StageTimer`): ``frontend``,
-            ``solve`` (insert, solve, prune), ``marginalize`` (the slide), ``total``.
-    """
-
-    t_ns: int
-    state: BodyState | None
-    status: str
-    reason: str = ""
-    keyframe: bool = False
-    tracked: int = 0
-    stereo: int = 0
-    landmarks: int = 0
-    iterations: int = 0
-    cost: float = float("nan")
-    rows: int = 0
-    timings: dict = dataclasses.field(default_factory=dict)
-
-    @property
-    def has_pose(self) -> bool:
-        return self.state is not None
-
-    def _pose(self) -> BodyState:
-        return self.state if self.state is not None else BodyState.unknown(self.t_ns)
-
-    rotation = property(lambda self: self._pose().rotation)
-    position = property(lambda self: self._pose().position)
-    velocity = property(lambda self: self._pose().velocity)
-    bias_gyro = property(lambda self: self._pose().bias_gyro)
-    bias_accel = property(lambda self: self._pose().bias_accel)
-
-
-@dataclasses.dataclass(frozen=True)
-class TrackedFrame:
-    """The front end's output for one frame (:meth:`StereoVio.track`), the back end's input.
-
-    Attributes:
-        t_ns: frame time, ns.  features: the tracker's :class:`FrameFeatures`.
-        frontend_ms: milliseconds the stage took.
-    """
-
-    t_ns: int
-    features: FrameFeatures
-    frontend_ms: float
 
 
 class StereoVio:
@@ -181,17 +86,12 @@ class StereoVio:
         self.T_C0C1 = np.linalg.inv(T[0]) @ T[1]
         self.R_BC0 = T[0, :3, :3]
         self.T_BC0 = T[0]
-        # the no-window phase's last frames: (t_ns, features, stereo depths, IMU interval
-        # from the frame before) for the initialisation while moving
-        self._init_frames: list[tuple] | None = None
-        self._init_tries = 0
-        self._cost_excess = 0  # consecutive frames failing the window's chi-square test
-        self._outliers = 0  # consecutive frames whose tracked observations were mostly rejected
+        self._start: StartCheck | None = None  # the check of an unconfirmed start
         with jax.enable_x64(True):
             self.params = CalibParams(jnp.zeros(6), jnp.asarray(T[:, :3, :3]),
                                       jnp.asarray(T[:, :3, 3]))
         self.resets = 0
-        self.window = SlidingWindow(cfg, self.noise, self.params)
+        self._new_window()  # self.window and its failure counts
         self._last_good: BodyState | None = None
         #: ``None`` or a callable ``(t_ns, state, problem, params)`` handed each full window
         #: solved on a good frame (no failure, enough landmarks), before it slides: for
@@ -258,13 +158,12 @@ class StereoVio:
             self._published = FlowSeed(np.array(est.bias_gyro, np.float64), velocity)
         return est
 
-    def _measurements(self, feats: FrameFeatures, depths: tuple | None = None) -> tuple:
+    def _measurements(self, feats: FrameFeatures, depths: tuple) -> tuple:
         """The window's landmark and observation updates of ``feats`` (slots taken), from its
-        stereo ``depths`` (:func:`~uavcal_jax.vio.slots.stereo_depths`, computed if not given)."""
-        cfg = self.config
-        depth, usable = depths or stereo_depths(feats, self.T_C0C1, cfg.min_stereo_depth,
-                                                cfg.max_stereo_depth)
-        return self.window.slots.measurements(feats, depth, usable, cfg.frontend.max_features)
+        stereo ``depths`` (:func:`~uavcal_jax.vio.slots.stereo_depths`)."""
+        depth, usable = depths
+        return self.window.slots.measurements(feats, depth, usable,
+                                              self.config.frontend.max_features)
 
     def _track_frame(self, t_ns: int, feats: FrameFeatures, timer: StageTimer
                      ) -> FrameEstimate:
@@ -289,20 +188,11 @@ class StereoVio:
             pred, pim, self.imu.full_row(iv.samples), updates, is_kf,
             cfg.min_stereo_depth * PRUNE_DEPTH_FRACTION)
         timer.lap("solve")
-        slots.blind = blind_frames(slots.blind, active, cfg.limits)
         cost = float(info.cost_final)
-        self._cost_excess = cost_excess_frames(self._cost_excess, cost, slots.rows, cfg.limits)
-        # the velocity and outlier tests wait for the start check: an at-rest start on a body
-        # in flight is corrected by its first solves (or re-opened by the check), which is no
-        # failure, though until then most tracks look wrong against it (a simulated outdoor
-        # flight at 8 m/s: 55-98 % rejected in its first 9 frames)
-        if self._init_frames is None:
-            self._outliers = outlier_frames(
-                self._outliers, *rejected_observations(updates, slots.observation_used),
-                cfg.limits)
-        failure = check_failure(est, pred, cost, slots.rows, slots.blind, cfg.limits,
-                                self._cost_excess, velocity_check=self._init_frames is None,
-                                outliers=self._outliers)
+        # the velocity and outlier tests wait for the start check to end
+        failure = self._failures.check(est, pred, cost, slots.rows, active, updates,
+                                       slots.observation_used, cfg.limits,
+                                       settled=self._start is None)
         if failure is not None:
             return self._reset(failure, t_ns, pred, timer, feats)
 
@@ -316,11 +206,18 @@ class StereoVio:
             window.refine_gyro_bias()
         timer.lap("marginalize")
         self._last_good = est
-        if self._init_frames is not None and cfg.init_frames >= 3:
-            self._buffer_init(t_ns, feats, depths)
-            start = self._check_start(est)
-            if start is not None:
-                return self._reopen(start, feats, depths, timer)
+        check = self._start
+        if check is not None and cfg.init_frames >= 3:
+            # the start check: once the frames align it ends, re-opening the window at the
+            # aligned state when the solved one is off (a start at rest on a moving body);
+            # it ends too after 3 * init_frames frames without an alignment
+            check.add(t_ns, feats, depths)
+            start = check.align(est)
+            if start is not None or check.exhausted:
+                self._start = None
+            if start is not None and check.disagrees(start, est):
+                self._new_window()
+                return self._open(t_ns, start, "moving", feats, depths, timer)
         status = "tracking" if active >= cfg.limits.min_landmarks else "coasting"
         return FrameEstimate(t_ns, est, status, reason, keyframe=is_kf, tracked=feats.n_tracked,
                              stereo=feats.n_stereo, landmarks=active,
@@ -339,74 +236,24 @@ class StereoVio:
         self.resets += 1
         self._last_good = state
         # re-initialise from the next frames' alignment (not at the propagated state)
-        self._init_frames, self._init_tries = [], 0
-        self._cost_excess = self._outliers = 0
-        self.window = SlidingWindow(self.config, self.noise, self.params)
+        self._start = StartCheck(self.imu, self.T_BC0, self.config)
+        self._new_window()
         return FrameEstimate(t_ns, state, "reset", reason.value, tracked=feats.n_tracked,
                              stereo=feats.n_stereo, timings=timer.timings())
 
-    def _buffer_init(self, t_ns: int, feats: FrameFeatures, depths: tuple) -> None:
-        """Keep the frame for the check of the start while moving (the last ``init_frames``
-        consecutive frames with their stereo depths and the IMU interval before each)."""
-        buf = self._init_frames
-        iv = None
-        if buf:
-            iv = self.imu.raw(buf[-1][0], t_ns)
-            if iv is None or iv.dt.max() > IMU_GAP_PERIODS * self.imu.period:
-                buf.clear()
-        if int(np.sum(depths[1])) < self.config.min_init_landmarks:
-            buf.clear()  # the odometry needs every frame of the stretch
-            return
-        buf.append((t_ns, feats, depths, iv if buf else None))
-        del buf[:-self.config.init_frames]
-
-    def _align(self, ref: BodyState) -> BodyState | None:
-        """The state at the newest buffered frame from the last ``init_frames`` frames' stereo
-        odometry and IMU (:func:`~uavcal_jax.vio.motion_init.initialize_moving`): aligned
-        gravity and velocity, ``ref``'s position and heading, zero biases (the window estimates
-        them; after a failure the old ones are suspect). ``None`` while the frames are too
-        few or do not align (the oldest is then dropped). Counts the try."""
-        cfg = self.config
-        buf = self._init_frames
-        self._init_tries += 1
-        if len(buf) < cfg.init_frames:
-            return None
-        rows = [(b[3].dt, b[3].gyro, b[3].accel) for b in buf[1:]]
-        init = initialize_moving([b[1] for b in buf], [b[2] for b in buf], rows, self.T_BC0,
-                                 ref.rotation)
-        if init is None:
-            del buf[0]
-            return None
-        return BodyState(ref.t_ns, init.rotation, ref.position.copy(), init.velocity,
-                         np.zeros(3), np.zeros(3))
-
-    def _check_start(self, est: BodyState) -> BodyState | None:
-        """In the window's first frames: the window opened on an assumption (levelled by the
-        accelerometer mean and at rest at the first start) that is wrong while the body
-        accelerates. Once ``init_frames`` frames align (:meth:`_align`), the aligned state
-        when it disagrees with the solved ``est`` by more than ``init_tilt_deg`` or
-        ``init_velocity`` (the window is then re-opened there), else ``None``. The check
-        ends once it ran, or after ``3 * init_frames`` frames without an alignment."""
-        cfg = self.config
-        start = self._align(est)
-        if start is not None or self._init_tries > 3 * cfg.init_frames:
-            self._init_frames = None
-        if start is None:
-            return None
-        tilt = np.degrees(np.arccos(np.clip(start.rotation[2] @ est.rotation[2], -1.0, 1.0)))
-        dv = float(np.linalg.norm(start.velocity - est.velocity))
-        return start if tilt > cfg.init_tilt_deg or dv > cfg.init_velocity else None
-
-    def _reopen(self, state: BodyState, feats: FrameFeatures, depths: tuple,
-                timer: StageTimer) -> FrameEstimate:
-        """A new window at ``state`` (the start while moving), this frame its first keyframe."""
+    def _new_window(self) -> None:
+        """An empty window, with its failure counts at zero."""
         self.window = SlidingWindow(self.config, self.noise, self.params)
-        self._cost_excess = self._outliers = 0
+        self._failures = FailureCounters()
+
+    def _open(self, t_ns: int, state: BodyState, reason: str, feats: FrameFeatures,
+              depths: tuple, timer: StageTimer) -> FrameEstimate:
+        """Open the (empty) window at ``state``, this frame its first keyframe."""
         self.window.open(state, self._measurements(feats, depths))
         self.window.slots.kf_features, self.window.slots.kf_rotation = feats, state.rotation
         self._last_good = state
         timer.lap("solve")
-        return FrameEstimate(state.t_ns, state, "initialized", "moving", keyframe=True,
+        return FrameEstimate(t_ns, state, "initialized", reason, keyframe=True,
                              tracked=feats.n_tracked, stereo=feats.n_stereo,
                              landmarks=int(np.sum(self.window.slots.landmark_used)),
                              timings=timer.timings())
@@ -429,18 +276,18 @@ class StereoVio:
                                  tracked=feats.n_tracked, stereo=feats.n_stereo,
                                  timings=timer.timings())
         reason = "first"
-        if state is not None and self._init_frames is not None and cfg.init_frames >= 3:
+        if state is not None and self._start is not None and cfg.init_frames >= 3:
             # after a reset: coast until the last frames align (a start while moving),
             # at most 3 * init_frames frames, then open at the IMU-propagated state
-            self._buffer_init(t_ns, feats, depths)
-            start = self._align(state)
-            if start is None and self._init_tries <= 3 * cfg.init_frames:
+            self._start.add(t_ns, feats, depths)
+            start = self._start.align(state)
+            if start is None and not self._start.exhausted:
                 self._last_good = state
                 return FrameEstimate(t_ns, state, "coasting", "reinit",
                                      tracked=feats.n_tracked, stereo=feats.n_stereo,
                                      timings=timer.timings())
             state, reason = (start, "moving") if start is not None else (state, "propagated")
-            self._init_frames = None
+            self._start = None
         elif state is None:
             try:
                 R0 = gravity_aligned_rotation(self.imu.accel_mean(t_ns, cfg.accel_init_s))
@@ -448,13 +295,6 @@ class StereoVio:
                 return FrameEstimate(t_ns, None, "waiting", tracked=feats.n_tracked)
             state = BodyState.at_rest(t_ns, R0)
             if cfg.init_frames >= 3:  # check the levelled, at-rest start once frames align
-                self._init_frames, self._init_tries = [], 0
-                self._buffer_init(t_ns, feats, depths)
-        self.window.open(state, self._measurements(feats, depths))
-        self.window.slots.kf_features, self.window.slots.kf_rotation = feats, state.rotation
-        self._last_good = state
-        timer.lap("solve")
-        return FrameEstimate(t_ns, state, "initialized", reason, keyframe=True,
-                             tracked=feats.n_tracked, stereo=feats.n_stereo,
-                             landmarks=int(np.sum(self.window.slots.landmark_used)),
-                             timings=timer.timings())
+                self._start = StartCheck(self.imu, self.T_BC0, cfg)
+                self._start.add(t_ns, feats, depths)
+        return self._open(t_ns, state, reason, feats, depths, timer)

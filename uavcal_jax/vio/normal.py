@@ -50,7 +50,7 @@ from uavcal_jax.vio.residuals import (
 )
 from uavcal_jax.vio.window import FRAME_DIM, POSE_DIM, CalibParams, WindowProblem, WindowState
 
-__all__ = ["NormalEquations", "normal_equations", "solve_linear", "solve_step", "quadratic"]
+__all__ = ["NormalEquations", "normal_equations", "solve_linear", "solve_step"]
 
 _D = FRAME_DIM
 _P = POSE_DIM
@@ -267,11 +267,3 @@ def solve_step(neq: NormalEquations, damping=0.0) -> tuple[jax.Array, jax.Array]
     x_f, x_l = solve_linear(neq, -neq.g_f, -neq.g_l, damping)
     N = x_f.shape[0] // _D
     return x_f.reshape(N, _D), x_l
-
-
-def quadratic(neq: NormalEquations, x_f: jax.Array, x_l: jax.Array) -> jax.Array:
-    """The model's change of cost ``g^T x + 0.5 x^T H x`` for a step (flattened frames)."""
-    x_f = x_f.reshape(-1)
-    hx = neq.H_ff @ x_f + neq.H_fl @ x_l
-    quad = x_f @ hx + x_l @ (neq.H_fl.T @ x_f + neq.H_ll * x_l)
-    return neq.g_f @ x_f + neq.g_l @ x_l + 0.5 * quad

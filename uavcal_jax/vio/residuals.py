@@ -38,7 +38,6 @@ from uavcal_jax.vio import robust
 from uavcal_jax.vio.window import (
     BA,
     BG,
-    FRAME_DIM,
     POS,
     ROT,
     VEL,
@@ -64,7 +63,6 @@ __all__ = [
     "prior_rotation_local",
     "prior_residual",
     "factor_residuals",
-    "stacked_residuals",
     "tangent_cost",
     "window_cost",
 ]
@@ -337,22 +335,6 @@ def window_cost(state: WindowState, problem: WindowProblem, params: CalibParams)
     s = jnp.sum(res.observation**2, -1)
     vis = jnp.where(res.observation_mask, robust.rho(s, cfg.robust, cfg.robust_scale), 0.0)
     return 0.5 * (jnp.sum(vis) + jnp.sum(res.imu**2) + jnp.sum(res.prior**2))
-
-
-def stacked_residuals(state: WindowState, problem: WindowProblem, params: CalibParams
-                      ) -> tuple[jax.Array, jax.Array]:
-    """``(r, w)``: the whitened residual vector (2M + 15(N-1) + 15N,) before the robust
-    function, and the IRLS weight ``rho'(s)`` of each row (0 on masked rows), so that
-    ``J^T diag(w) J`` and ``J^T (w r)`` are the Gauss-Newton normal equations and gradient."""
-    cfg = problem.config
-    res = factor_residuals(state, problem, params)
-    s = jnp.sum(res.observation**2, -1)
-    w_obs = jnp.where(res.observation_mask, robust.weight(s, cfg.robust, cfg.robust_scale), 0.0)
-    r = jnp.concatenate([res.observation.reshape(-1), res.imu.reshape(-1), res.prior])
-    w = jnp.concatenate([jnp.repeat(w_obs, 2),
-                         jnp.repeat(res.imu_mask.astype(r.dtype), FRAME_DIM),
-                         jnp.ones_like(res.prior)])
-    return r, w
 
 
 def flat_residual(state: WindowState, problem: WindowProblem, params: CalibParams) -> jax.Array:

@@ -1,8 +1,8 @@
 """Run the stereo VIO over a whole recorded sequence (EuRoC folder or ROS bag, as read by
 :mod:`uavcal_jax.data`), and the run's result: camera-rate trajectory, flags, timings, its
-summary (with ATE/RPE against ground truth) and the per-frame table written beside the
-trajectory (:data:`FRAME_COLUMNS`, :func:`write_frames_csv`: the format lives here, beside the
-:class:`~uavcal_jax.vio.estimator.FrameEstimate` whose fields it lists).
+summary (with ATE/RPE against ground truth) and the rows of the per-frame table written
+beside the trajectory (:meth:`VioResult.frame_rows`, the format
+:mod:`uavcal_jax.data.vio_frames`).
 
 Stereo pairing: a left frame is paired with the right frame of the same timestamp (within
 ``PAIR_TOLERANCE_NS``); a left frame without one is processed monocularly (no stereo
@@ -13,13 +13,11 @@ counted in ``VioResult.unreadable``.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -30,24 +28,21 @@ from uavcal_jax.errors import DataError, DataRepairWarning
 from uavcal_jax.imu import remove_offset
 from uavcal_jax.progress import progress
 from uavcal_jax.vio.config import VioConfig, resolve_camera
-from uavcal_jax.vio.estimator import FrameEstimate, StereoVio
+from uavcal_jax.vio.estimator import StereoVio
+from uavcal_jax.vio.frame_estimate import FrameEstimate
 from uavcal_jax.vio.stage_timer import TIMING_KEYS
 from uavcal_jax.vio.trajectory_metrics import trajectory_errors
 
-__all__ = ["FRAME_COLUMNS", "PAIR_TOLERANCE_NS", "VioResult", "estimate_stream",
-           "one_blas_thread", "run_vio", "stereo_pairs", "write_frames_csv"]
+__all__ = ["PAIR_TOLERANCE_NS", "VioResult", "estimate_stream", "one_blas_thread", "run_vio",
+           "stereo_pairs"]
 
 #: Largest left/right timestamp difference still paired as one stereo frame, ns.
 PAIR_TOLERANCE_NS = 1_000_000
-#: Columns of the per-frame table (:meth:`VioResult.frame_rows`, :func:`write_frames_csv`):
-#: :class:`~uavcal_jax.vio.estimator.FrameEstimate`'s flags, its cost, and its timings in ms.
-FRAME_COLUMNS = ("t_ns", "status", "reason", "keyframe", "tracked", "stereo", "landmarks",
-                 "iterations", "cost", "frontend_ms", "solve_ms", "marginalize_ms", "total_ms")
 
 
 @dataclasses.dataclass(frozen=True)
 class VioResult:
-    """A VIO run: one :class:`~uavcal_jax.vio.estimator.FrameEstimate` per left frame.
+    """A VIO run: one :class:`~uavcal_jax.vio.frame_estimate.FrameEstimate` per left frame.
 
     Attributes:
         frames: the per-frame estimates.  resets: failure resets.
@@ -96,12 +91,11 @@ class VioResult:
         }
 
     def frame_rows(self) -> list[tuple]:
-        """The per-frame table: one row of :data:`FRAME_COLUMNS` per frame, as written (text
-        for the cost and the timings: ``%.6g`` and milliseconds to ``%.3f``)."""
-        return [(f.t_ns, f.status, f.reason, int(f.keyframe), f.tracked, f.stereo, f.landmarks,
-                 f.iterations, f"{f.cost:.6g}",
-                 *(f"{f.timings.get(k, 0.0):.3f}"
-                   for k in TIMING_KEYS))
+        """The per-frame table's rows (:data:`~uavcal_jax.data.vio_frames.FRAME_COLUMNS`,
+        written by :func:`~uavcal_jax.data.vio_frames.write_frames_csv`): each frame's flags,
+        its cost and its timings in ms (0 for a stage it did not run)."""
+        return [(f.t_ns, f.status, f.reason, f.keyframe, f.tracked, f.stereo, f.landmarks,
+                 f.iterations, f.cost, *(f.timings.get(k, 0.0) for k in TIMING_KEYS))
                 for f in self.frames]
 
     def summary(self, ground_truth: GroundTruth | None = None) -> dict:
@@ -131,17 +125,6 @@ class VioResult:
         if ground_truth is not None and len(traj) >= 3:
             out |= trajectory_errors(traj, ground_truth)
         return out
-
-
-def write_frames_csv(path: str | Path, result: VioResult) -> Path:
-    """Write ``result``'s per-frame table (:data:`FRAME_COLUMNS`, :meth:`VioResult.frame_rows`)
-    as CSV with a header row. Returns ``path``."""
-    path = Path(path)
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(FRAME_COLUMNS)
-        w.writerows(result.frame_rows())
-    return path
 
 
 def stereo_pairs(sequence: Sequence, left: str = "cam0", right: str = "cam1"

@@ -52,7 +52,6 @@ class WindowSlots:
         rows: residual rows in use at the last summary.
         kf_features: the last keyframe's :class:`FrameFeatures`.  kf_rotation: (3, 3) its
             body-to-world rotation (the keyframe decision's reference).
-        blind: consecutive frames with too few landmarks.
         filled_once: the window has been full (the gyro bias was refined from its rotations).
     """
 
@@ -65,7 +64,6 @@ class WindowSlots:
         self.rows = 0
         self.kf_features: FrameFeatures | None = None
         self.kf_rotation: np.ndarray | None = None
-        self.blind = 0
         self.filled_once = False
 
     @property

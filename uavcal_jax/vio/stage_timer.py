@@ -1,5 +1,5 @@
 """Per-frame stage timings of the estimator's back end, recorded in one place
-(:attr:`~uavcal_jax.vio.estimator.FrameEstimate.timings`)."""
+(:attr:`~uavcal_jax.vio.frame_estimate.FrameEstimate.timings`)."""
 
 from __future__ import annotations
 
