@@ -59,8 +59,22 @@ class ImuCalibration:
     noise: ImuNoise
 
 
+class _Timestamped:
+    """Samples stamped by ``t_ns`` (N,) int64 nanoseconds."""
+
+    t_ns: np.ndarray
+
+    @property
+    def t(self) -> np.ndarray:
+        """(N,) float64 seconds."""
+        return self.t_ns.astype(np.float64) * 1e-9
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+
 @dataclass(frozen=True)
-class ImuData:
+class ImuData(_Timestamped):
     """IMU samples in the IMU (body) frame.
 
     Attributes:
@@ -73,17 +87,9 @@ class ImuData:
     gyro: np.ndarray
     accel: np.ndarray
 
-    @property
-    def t(self) -> np.ndarray:
-        """(N,) float64 seconds."""
-        return self.t_ns.astype(np.float64) * 1e-9
-
-    def __len__(self) -> int:
-        return int(self.t_ns.shape[0])
-
 
 @dataclass(frozen=True)
-class GroundTruth:
+class GroundTruth(_Timestamped):
     """Ground-truth body (IMU) states in the world frame.
 
     Attributes:
@@ -101,13 +107,6 @@ class GroundTruth:
     velocity: np.ndarray | None = None
     bias_gyro: np.ndarray | None = None
     bias_accel: np.ndarray | None = None
-
-    @property
-    def t(self) -> np.ndarray:
-        return self.t_ns.astype(np.float64) * 1e-9
-
-    def __len__(self) -> int:
-        return int(self.t_ns.shape[0])
 
 
 @dataclass(frozen=True)

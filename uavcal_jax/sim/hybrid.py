@@ -48,11 +48,12 @@ from uavcal_jax.data.sequence import GroundTruth, ImuData, Sequence
 from uavcal_jax.data.sim_config import SIM_CONFIG_FILE
 from uavcal_jax.errors import DataError
 from uavcal_jax.sim.config import SimConfig, camera_calibrations, stage_seeds
-from uavcal_jax.sim.frames import render_frames
 from uavcal_jax.sim.simulate import (
     SimReport,
     calib_dict,
     check_out_dir,
+    finish_report,
+    render_into_report,
     with_offset,
     write_recording_atomically,
 )
@@ -289,17 +290,7 @@ def _hybrid_into(seq: Sequence, real: Path, span: HybridSpan, config: SimConfig,
                                               "the frames follow a trajectory fitted to it.")
         write_s = time.perf_counter() - t_write
         if config.frames:
-            frame_info, frame_timings = render_frames(
-                config, traj, imu.t_ns, calibs, seeds["scene"], writer, show_progress,
-                camera_seed=seeds["camera"], cam_t_ns=span.cam_t_ns)
-            resolved["cameras"] = {k: calib_dict(c) for k, c in calibs.items()}
-            resolved["camera_model"] = frame_info["camera_model"]
-            resolved["scene"] = frame_info["scene"]
-            resolved["counts"].update(frame_info["counts"])
-            timings.update(frame_timings)
-            write_s += timings.pop("write_wait")
+            write_s += render_into_report(resolved, timings, config, traj, imu.t_ns, calibs,
+                                          seeds, writer, show_progress, cam_t_ns=span.cam_t_ns)
         t_close = time.perf_counter()
-    timings["write"] = write_s + time.perf_counter() - t_close
-    timings["encode"] = writer.encode_seconds
-    timings["total"] = time.perf_counter() - t_begin
-    return SimReport(root=root, resolved=resolved, timings=timings)
+    return finish_report(root, resolved, timings, writer, write_s, t_close, t_begin)

@@ -79,8 +79,9 @@ from uavcal_jax.sim.frames import render_frames
 from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import FitConfig, check_flight_limits, fit_trajectory_report
 
-__all__ = ["SimReport", "calib_dict", "check_out_dir", "imu_calibration", "load_flight",
-           "mount_imu", "simulate", "simulate_report", "with_offset", "write_recording_atomically"]
+__all__ = ["SimReport", "calib_dict", "check_out_dir", "finish_report", "imu_calibration",
+           "load_flight", "mount_imu", "render_into_report", "simulate", "simulate_report",
+           "with_offset", "write_recording_atomically"]
 
 
 @dataclass
@@ -328,16 +329,34 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
         write_s = time.perf_counter() - t_write
 
         if config.frames:
-            frame_info, frame_timings = render_frames(config, traj, imu.t_ns, calibs,
-                                                      seeds["scene"], writer, show_progress,
-                                                      camera_seed=seeds["camera"])
-            resolved["cameras"] = {k: calib_dict(c) for k, c in calibs.items()}
-            resolved["camera_model"] = frame_info["camera_model"]
-            resolved["scene"] = frame_info["scene"]
-            resolved["counts"].update(frame_info["counts"])
-            timings.update(frame_timings)
-            write_s += timings.pop("write_wait")
+            write_s += render_into_report(resolved, timings, config, traj, imu.t_ns, calibs,
+                                          seeds, writer, show_progress)
         t_close = time.perf_counter()
+    return finish_report(root, resolved, timings, writer, write_s, t_close, t_begin)
+
+
+def render_into_report(resolved: dict, timings: dict, config: SimConfig, traj,
+                       imu_t_ns: np.ndarray, calibs: dict, seeds: dict, writer: EurocWriter,
+                       show_progress: bool, cam_t_ns: np.ndarray | None = None) -> float:
+    """Render the frames (:func:`~uavcal_jax.sim.frames.render_frames`) into ``writer``,
+    recording the cameras, scene and counts in ``resolved`` and the stage times in
+    ``timings`` (both updated in place); returns the seconds spent waiting on the writer."""
+    frame_info, frame_timings = render_frames(config, traj, imu_t_ns, calibs, seeds["scene"],
+                                              writer, show_progress,
+                                              camera_seed=seeds["camera"], cam_t_ns=cam_t_ns)
+    resolved["cameras"] = {k: calib_dict(c) for k, c in calibs.items()}
+    resolved["camera_model"] = frame_info["camera_model"]
+    resolved["scene"] = frame_info["scene"]
+    resolved["counts"].update(frame_info["counts"])
+    timings.update(frame_timings)
+    return timings.pop("write_wait")
+
+
+def finish_report(root: Path, resolved: dict, timings: dict, writer: EurocWriter,
+                  write_s: float, t_close: float, t_begin: float) -> SimReport:
+    """The :class:`SimReport` once the writer has closed (at ``t_close``, ``perf_counter``
+    seconds; the simulation began at ``t_begin``): the write, encode and total seconds added
+    to ``timings``."""
     timings["write"] = write_s + time.perf_counter() - t_close
     timings["encode"] = writer.encode_seconds
     timings["total"] = time.perf_counter() - t_begin
