@@ -1,21 +1,10 @@
-"""Training steps: the loss falls on a fixed batch, K vmapped seeds equal K single runs, and a
-data-parallel step over 4 forced host devices equals the 1-device step.
-
-JAX fixes its CPU device count when it first runs, so the 4-device step runs in a fresh
-interpreter (``XLA_FLAGS=--xla_force_host_platform_device_count=4``) that writes its
-parameters to a file; this process runs the same steps on one device and compares.
-"""
-
-import json
-import os
-import subprocess
-import sys
-import textwrap
+"""Training steps: the loss falls on a fixed batch, and K vmapped seeds equal K single runs."""
 
 import jax
 import numpy as np
 import pytest
 
+from uavcal_jax.calib.config import CalibConfig
 from uavcal_jax.calib.train import (
     create_train_state,
     create_train_states,
@@ -23,68 +12,24 @@ from uavcal_jax.calib.train import (
     train_step,
     train_step_seeds,
 )
+from uavcal_jax.config import apply_overrides
 
-# Shared by this process and the fresh interpreter: tiny model, 64x36 frames, patch 16,
-# windows of 8 frames, batch 4 (one padded frame).
-SETUP = textwrap.dedent(
-    """
-    import jax, numpy as np
-    from uavcal_jax.calib.config import CalibConfig
-    from uavcal_jax.config import apply_overrides
-    CONFIG = apply_overrides(CalibConfig(), [
-        "model.d_model=32", "model.layers=1", "model.heads=2", "model.patch=16,16",
-        "train.batch_size=4", "train.learning_rate=1e-3"])
-    _rng = np.random.default_rng(0)
-    BATCH = {"frames": _rng.integers(0, 256, (4, 8, 36, 64), dtype=np.uint8),
-             "imu": _rng.normal(0, 1, (4, 8, 6)).astype(np.float32),
-             "mask": np.ones((4, 8), bool)}
-    BATCH["mask"][1, -1] = False
-    BATCH["imu"][1, -1] = 0
-    STEPS = 3
-    def step_keys(i, k=None):
-        key = jax.random.fold_in(jax.random.key(1), i)
-        return key if k is None else jax.random.split(key, k)
-    """
-)
-exec(SETUP)  # defines CONFIG, BATCH, STEPS, step_keys
-CONFIG, BATCH, STEPS, step_keys = (globals()[k] for k in ("CONFIG", "BATCH", "STEPS",
-                                                           "step_keys"))
-
-PARALLEL = SETUP + textwrap.dedent(
-    """
-    import json, sys
-    from uavcal_jax.calib.train import create_train_state, data_parallel
-    assert len(jax.devices()) == 4, jax.devices()
-    dp = data_parallel()
-    # the parent's initial state (structure traced, not compiled: one compile less here)
-    treedef = jax.tree.structure(jax.eval_shape(
-        lambda: create_train_state(CONFIG, jax.random.key(0), BATCH)))
-    init = np.load(sys.argv[2])
-    state = jax.tree.unflatten(treedef, [init[f"arr_{i}"] for i in range(len(init.files))])
-    state = dp.replicate(state)
-    batch = dp.shard(BATCH)
-    losses = []
-    for i in range(STEPS):
-        state, m = dp.train_step(state, batch, dp.replicate(step_keys(i)))
-        losses.append(float(m["loss"]))
-    flat = {jax.tree_util.keystr(p): np.asarray(v)
-            for p, v in jax.tree_util.tree_leaves_with_path(state.params)}
-    np.savez(sys.argv[1], **flat)
-    print(json.dumps({"losses": losses,
-                      "batch_devices": len(batch["imu"].sharding.device_set),
-                      "shard_rows": sorted(s.data.shape[0]
-                                           for s in batch["imu"].addressable_shards),
-                      "param_devices": len(jax.tree.leaves(state.params)[0].sharding.device_set)}))
-    """
-)
+# tiny model, 64x36 frames, patch 16, windows of 8 frames, batch 4 (one padded frame)
+CONFIG = apply_overrides(CalibConfig(), [
+    "model.d_model=32", "model.layers=1", "model.heads=2", "model.patch=16,16",
+    "train.batch_size=4", "train.learning_rate=1e-3"])
+_rng = np.random.default_rng(0)
+BATCH = {"frames": _rng.integers(0, 256, (4, 8, 36, 64), dtype=np.uint8),
+         "imu": _rng.normal(0, 1, (4, 8, 6)).astype(np.float32),
+         "mask": np.ones((4, 8), bool)}
+BATCH["mask"][1, -1] = False
+BATCH["imu"][1, -1] = 0
+STEPS = 3
 
 
-def _run_fresh(script: str, *args: str, env: dict | None = None) -> dict:
-    """Run ``script`` in a fresh interpreter; its last stdout line as JSON."""
-    res = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True,
-                         timeout=600, env={**os.environ, **(env or {})})
-    assert res.returncode == 0, res.stderr[-2000:]
-    return json.loads(res.stdout.strip().splitlines()[-1])
+def step_keys(i, k=None):
+    key = jax.random.fold_in(jax.random.key(1), i)
+    return key if k is None else jax.random.split(key, k)
 
 
 def _run(state, n=STEPS):
@@ -136,23 +81,6 @@ def test_vmapped_seeds_equal_single_seed_runs(single):
         for i in range(STEPS):
             alone, _ = train_step(alone, BATCH, step_keys(i, k)[j])
         assert _max_diff(seeds[j], alone.params) < 1e-5
-
-
-def test_four_device_data_parallel_step_equals_one_device(single, tmp_path):
-    init, (one, losses) = single
-    out_file, init_file = tmp_path / "params.npz", tmp_path / "init.npz"
-    np.savez(init_file, *[np.asarray(x) for x in jax.tree.leaves(init)])
-    out = _run_fresh(PARALLEL, str(out_file), str(init_file),
-                     env={"XLA_FLAGS": "--xla_force_host_platform_device_count=4",
-                          "JAX_PLATFORMS": "cpu"})
-    assert out["batch_devices"] == 4 and out["shard_rows"] == [1, 1, 1, 1]
-    assert out["param_devices"] == 4  # replicated
-    np.testing.assert_allclose(out["losses"], losses, rtol=1e-5)
-    got = np.load(out_file)
-    flat = {jax.tree_util.keystr(p): np.asarray(v)
-            for p, v in jax.tree_util.tree_leaves_with_path(one.params)}
-    assert set(got.files) == set(flat)
-    assert max(float(np.abs(got[k] - flat[k]).max()) for k in flat) < 1e-5
 
 
 def test_total_label_adds_the_sensor_bias_to_the_offset(single):

@@ -23,24 +23,18 @@ every sample of ``gyro_seq`` as to ``imu`` (:func:`_motion`).
 - K seeds: :func:`create_train_states` builds K independently initialised states stacked on
   a leading axis (one key each) and :func:`train_step_seeds` / :func:`eval_step_seeds` step
   all of them at once with ``jax.vmap`` (one batch, K keys: own dropout and offset streams).
-- Data parallel: :func:`data_parallel` jits the steps over a 1-D device mesh, the batch
-  split on its leading axis (``NamedSharding(mesh, P("batch"))``), state and keys
-  replicated; XLA inserts the gradient all-reduce. Random draws are partitionable
-  (``jax_threefry_partitionable``), so the sharded step draws the very same offsets and
-  dropout masks as the one-device step.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import Any, NamedTuple
+from typing import Any
 
 import flax.struct
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from uavcal_jax.calib.config import CalibConfig, TrainConfig
 from uavcal_jax.calib.inject import (
@@ -57,10 +51,8 @@ from uavcal_jax.calib.mounting import isotropic_statistics, random_mountings, re
 
 __all__ = [
     "CalibState",
-    "DataParallel",
     "create_train_state",
     "create_train_states",
-    "data_parallel",
     "eval_step",
     "eval_step_seeds",
     "make_optimizer",
@@ -334,45 +326,3 @@ def train_step_seeds(states: CalibState, batch: dict, keys: jax.Array):
 def eval_step_seeds(states: CalibState, batch: dict):
     """``(states, batch) -> metrics`` of K stacked states (leading ``K`` axis)."""
     return _eval_seeds(states, batch)
-
-
-class DataParallel(NamedTuple):
-    """Steps jitted over a 1-D ``mesh`` (axis ``"batch"``): ``train_step``, ``eval_step``,
-    their K-seed forms, and placement helpers ``shard`` (a batch, split on axis 0; its size
-    must be a multiple of the device count) and ``replicate`` (a state or key)."""
-
-    mesh: Mesh
-    train_step: Any
-    eval_step: Any
-    train_step_seeds: Any
-    eval_step_seeds: Any
-    shard: Any
-    replicate: Any
-
-
-def data_parallel(devices=None) -> DataParallel:
-    """Data-parallel steps over ``devices`` (default: all of the default backend)."""
-    devices = list(jax.devices() if devices is None else devices)
-    mesh = Mesh(np.array(devices), ("batch",))
-    split = NamedSharding(mesh, PartitionSpec("batch"))
-    whole = NamedSharding(mesh, PartitionSpec())
-
-    def shard(batch: dict) -> dict:
-        for k, v in batch.items():
-            if np.shape(v)[0] % len(devices):
-                raise ValueError(f"batch[{k!r}] has {np.shape(v)[0]} rows, not a multiple of "
-                                 f"the {len(devices)} devices")
-        return jax.device_put(batch, split)
-
-    def replicate(tree):
-        return jax.device_put(tree, whole)
-
-    # Inputs carry their placement (shard / replicate); the updated state is pinned
-    # replicated so that a sharded step's output feeds the next step unchanged.
-    steps = {
-        "train_step": jax.jit(_train_step, out_shardings=(whole, whole)),
-        "eval_step": jax.jit(_eval_step),
-        "train_step_seeds": jax.jit(_train_seeds, out_shardings=(whole, whole)),
-        "eval_step_seeds": jax.jit(_eval_seeds),
-    }
-    return DataParallel(mesh=mesh, shard=shard, replicate=replicate, **steps)
