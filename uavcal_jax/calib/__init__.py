@@ -20,10 +20,8 @@ inputs), :mod:`~uavcal_jax.calib.inference` (frame-token reuse over a sequence) 
 
 from uavcal_jax.calib.baselines import (
     LeastSquaresConfig,
-    least_squares_offset,
     least_squares_windows,
     mean_offset,
-    sequence_offset,
 )
 from uavcal_jax.calib.batch import frames_to_model, model_batch
 from uavcal_jax.calib.config import (
@@ -77,7 +75,6 @@ __all__ = [
     "frames_to_model",
     "imu_statistics",
     "inject",
-    "least_squares_offset",
     "least_squares_windows",
     "loss_terms",
     "mean_offset",
@@ -85,7 +82,6 @@ __all__ = [
     "metrics_from_sums",
     "model_batch",
     "sample_offset",
-    "sequence_offset",
     "train_step",
     "train_step_seeds",
     "training_offsets",

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from uavcal_jax.data.sequence import GroundTruth, Sequence
+from uavcal_jax.data.sequence import GroundTruth
 from uavcal_jax.data.windows import WindowSet
 from uavcal_jax.errors import DataError
 from uavcal_jax.geometry import so3
@@ -52,10 +52,8 @@ __all__ = [
     "ground_truth_rotations",
     "keyframe_pairs",
     "least_squares_fit",
-    "least_squares_offset",
     "least_squares_windows",
     "mean_offset",
-    "sequence_offset",
 ]
 
 
@@ -290,44 +288,10 @@ def ground_truth_rotations(gt: GroundTruth) -> np.ndarray:
     return np.asarray(so3.from_quaternion(jnp.asarray(gt.quaternion)), np.float64)
 
 
-def least_squares_offset(imu_t_ns, gyro, accel, gt_t_ns, gt_rotation, gt_position, gt_velocity,
-                         config: LeastSquaresConfig = LeastSquaresConfig(), *,
-                         noise: ImuNoise = EUROC_ADIS16448, span=None,
-                         return_std: bool = False):
-    """The least-squares constant offset of one IMU stream, (6,) gyro rad/s then accel m/s^2.
-
-    Arguments as :func:`keyframe_pairs`; ``noise`` weights the accel rows and gives the
-    predicted standard deviation, a second (6,) array with ``return_std``. Raises
-    :class:`DataError` on too few keyframe pairs, bad samples or an invalid preintegration.
-    """
-    pairs = keyframe_pairs(imu_t_ns, gyro, accel, gt_t_ns, gt_rotation, gt_position,
-                           gt_velocity, config, span=span)
-    pairs = jax.tree_util.tree_map(lambda x: x[None], pairs)
-    offset, std = least_squares_fit(pairs, noise, config)
-    return (offset[0], std[0]) if return_std else offset[0]
-
-
 def _check_ground_truth(gt: GroundTruth | None, where) -> GroundTruth:
     if gt is None or gt.velocity is None:
         raise DataError("the least-squares offset needs ground truth with velocities", where)
     return gt
-
-
-def sequence_offset(sequence: Sequence, config: LeastSquaresConfig = LeastSquaresConfig(), *,
-                    span=None, noise: ImuNoise | None = None, return_std: bool = False):
-    """:func:`least_squares_offset` of a :class:`Sequence` (its IMU against its ground
-    truth; ``noise`` defaults to the sequence's IMU calibration, else EuRoC's ADIS16448)."""
-    where = sequence.root if sequence.root is not None else sequence.name
-    gt = _check_ground_truth(sequence.ground_truth, where)
-    if sequence.imu is None:
-        raise DataError("the least-squares offset needs IMU samples", where)
-    calib = sequence.imu_calibration
-    if noise is None:
-        noise = calib.noise if calib is not None else EUROC_ADIS16448
-    imu, R = sequence.imu, ground_truth_rotations(gt)
-    return least_squares_offset(imu.t_ns, imu.gyro, imu.accel, gt.t_ns, R, gt.position,
-                                gt.velocity, config, noise=noise, span=span,
-                                return_std=return_std)
 
 
 def _window_spans(ws: WindowSet) -> np.ndarray:
