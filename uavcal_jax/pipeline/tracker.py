@@ -93,7 +93,6 @@ class _Frame:
     """A recent detected frame, for the same-target check on its boxes."""
 
     boxes: np.ndarray  # (N, 4) all detections
-    kept: np.ndarray  # indices of the whole boxes (not parts), what the association saw
     T_WB: np.ndarray | None
     sensors: FrameSensors
 
@@ -117,6 +116,9 @@ class TargetTracker:
         self.chain = FollowedChain(class_id, config.associate)
         self.frames: dict[int, _Frame] = {}  # by detected frame (the association's count)
         self.times: dict[int, float] = {}  # seconds, by detected frame
+        # by detected frame, the indices of its whole boxes (not parts): what the association
+        # and the chain index (kept for every frame: a chain's last box may be long ago)
+        self.kept: dict[int, np.ndarray] = {}
         self.points: dict[tuple[int, int], LocatedPoint] = {}  # (detected frame, box)
         # the heading beliefs: from the box shapes alone, and with the velocity as well
         self.shape_belief, self.belief, self.t_belief = uniform_belief(), uniform_belief(), None
@@ -136,7 +138,7 @@ class TargetTracker:
         images ``sensors``."""
         self._locate_ms = []
         c0 = time.perf_counter()
-        ids = pick = None
+        ids = pick = shape_only = None
         if detections is not None:
             ids, pick = self._associate(t_s, detections, T_WB, sensors)
         c1 = time.perf_counter()
@@ -186,20 +188,19 @@ class TargetTracker:
         """Steps 1 and 2: the frame's track ids (N,) and the followed box's index (-1: none)."""
         k = self.associator.frame + 1
         classes = np.asarray(det.classes, np.int64)
-        self.frames[k] = _Frame(np.asarray(det.boxes, np.float64).reshape(-1, 4),
-                                np.zeros(0, np.int64), T_WB, sensors)
+        self.frames[k] = _Frame(np.asarray(det.boxes, np.float64).reshape(-1, 4), T_WB, sensors)
         self.times[k] = t_s
         # a part of a target boxed beside the whole is not a target of its own; another
         # target seen past it, inside its box, is
         kept = np.flatnonzero(contained_duplicates(
             det.boxes, classes, self.config.associate.merge_contained,
             lambda i, j: classes[j] != self.class_id or self._same(k, i, k, j)))
-        self.frames[k].kept = kept
+        self.kept[k] = kept
 
         def same_kept(k_a: int, i_a: int, k_b: int, i_b: int) -> bool:
             if classes[kept[i_b]] != self.class_id:  # k_b is this frame
                 return True  # only the class followed is located
-            return self._same(k_a, int(self.frames[k_a].kept[i_a]), k_b, int(kept[i_b]))
+            return self._same(k_a, int(self.kept[k_a][i_a]), k_b, int(kept[i_b]))
 
         ids_kept = self.associator.step(det.boxes[kept], classes[kept], same_kept)
         ids = np.full(len(classes), -1, np.int64)
