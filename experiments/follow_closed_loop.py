@@ -36,6 +36,7 @@ The last line printed is one JSON object.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -52,13 +53,14 @@ from uavcal_jax.config import ConfigError, apply_overrides  # noqa: E402
 from uavcal_jax.errors import DataError  # noqa: E402
 from uavcal_jax.pipeline.closed_loop import (  # noqa: E402
     POSE_MODES,
+    STAGES,
     ClosedLoopConfig,
     ClosedLoopResult,
     fly_closed_loop,
 )
 from uavcal_jax.pipeline.detectors import load_network_detector  # noqa: E402
 from uavcal_jax.pipeline.run_config import RunConfig  # noqa: E402
-from uavcal_jax.sim.config import LOW_RESOLUTION  # noqa: E402
+from uavcal_jax.sim.ground_target import GroundPath  # noqa: E402
 from uavcal_jax.xla_cache import enable_compilation_cache  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,9 +89,8 @@ def table(results: dict[str, ClosedLoopResult]) -> str:
             _fmt(m["localisation_rmse_m"][k] and m["localisation_rmse_m"][k]["rmse"])
             for k in ("raw", "filtered"))),
         ("VIO ATE, m", lambda m: _fmt(m["vio_ate_m"] and m["vio_ate_m"]["rmse"], 3)),
-        ("ms per frame (render, vio, detect, locate, filter, follow, drone)", lambda m: ", ".join(
-            _fmt(m["ms_per_frame"][s]["mean"], 1) for s in
-            ("render", "vio", "detect", "locate", "filter", "follow", "drone")))]
+        (f"ms per frame ({', '.join(STAGES)})", lambda m: ", ".join(
+            _fmt(m["ms_per_frame"][s]["mean"], 1) for s in STAGES))]
     names = list(results)
     out = ["| | " + " | ".join(f"{n} pose" for n in names) + " |",
            "|---|" + "---|" * len(names)]
@@ -148,11 +149,13 @@ def main(argv=None) -> dict:
     ap.add_argument("--detector", default="shipped",
                     help="shipped (the package's weights), labels (the renderer's target "
                          "boxes) or a `uavcal detect train` run folder [shipped]")
-    ap.add_argument("--duration", type=positive, default=30.0, help="seconds of flight [30]")
-    ap.add_argument("--resolution", type=parse_resolution, default=LOW_RESOLUTION,
-                    help=f"WxH of the frames [{LOW_RESOLUTION[0]}x{LOW_RESOLUTION[1]}]")
-    ap.add_argument("--camera-pitch", type=float, default=30.0,
-                    help="stereo rig below the forward axis, degrees [30]")
+    sim = ClosedLoopConfig().sim
+    ap.add_argument("--duration", type=positive, default=sim.duration,
+                    help=f"seconds of flight [{sim.duration:g}]")
+    ap.add_argument("--resolution", type=parse_resolution, default=sim.resolution,
+                    help="WxH of the frames [{}x{}]".format(*sim.resolution))
+    ap.add_argument("--camera-pitch", type=float, default=sim.camera_pitch_deg,
+                    help=f"stereo rig below the forward axis, degrees [{sim.camera_pitch_deg:g}]")
     ap.add_argument("--speed", type=positive, default=1.5, help="the car's speed, m/s [1.5]")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -176,14 +179,14 @@ def main(argv=None) -> dict:
         else:
             detector = load_network_detector(args.detector, run_cfg.detect.detector_threshold())
             name = str(args.detector)
-        base = ClosedLoopConfig(duration=args.duration, resolution=args.resolution,
-                                camera_pitch_deg=args.camera_pitch, seed=args.seed, run=run_cfg)
-        base = ClosedLoopConfig(**{**base.__dict__, "path": type(base.path)(
-            **{**base.path.__dict__, "speed": args.speed})})
+        sim = dataclasses.replace(sim, duration=args.duration,
+                                  resolution=args.resolution, camera_pitch_deg=args.camera_pitch,
+                                  seed=args.seed)
+        base = ClosedLoopConfig(sim=sim, run=run_cfg, path=GroundPath(speed=args.speed))
         poses = list(POSE_MODES) if args.pose == "both" else [args.pose]
         results = {}
         for pose in poses:
-            cfg = ClosedLoopConfig(**{**base.__dict__, "pose": pose})
+            cfg = dataclasses.replace(base, pose=pose)
             results[pose] = fly_closed_loop(cfg, detector, name, show_progress=not args.quiet)
     except (DataError, ValueError) as err:
         sys.exit(f"follow_closed_loop: {err}")

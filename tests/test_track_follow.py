@@ -1,7 +1,8 @@
 """track.follow and track.associate: the set-point law (exact stand-off, height and yaw on a
 static target; equivariance to rotating and translating the world; yaw wrapping the short way
 at +-pi; rate limits; a moving and a lost target), and detection association (ids kept through
-a crossing and a missed frame; the longest track of a class)."""
+a crossing and a missed frames; a part of a larger box dropped; a box the localisation
+refuses not matched). The choice of the followed target: test_track_chain."""
 
 from __future__ import annotations
 
@@ -172,92 +173,6 @@ def test_association_keeps_ids_through_a_crossing_and_missed_frames():
             mapping.setdefault(name, set()).add(int(i))
     assert all(len(v) == 1 for v in mapping.values()), mapping  # one id per target
     assert len({next(iter(v)) for v in mapping.values()}) == 3  # three distinct ids
-    # the longest class-0 track is B (seen in 20 frames; A in 19); class 1 is C
-    assert A.longest_track(ids, classes, 0) == next(iter(mapping["B"]))
-    assert A.longest_track(ids, classes, 1) == next(iter(mapping["C"]))
-    assert A.longest_track(ids, classes, 7) is None
-    # counting only usable boxes (say B's are cut by the border after frame 4): A is longer
-    usable = [np.array([not (name == "B" and k > 4) for name in names])
-              for k, names in enumerate(truth)]
-    assert A.longest_track(ids, classes, 0, usable) == next(iter(mapping["A"]))
-
-
-def test_followed_chain_bridges_an_identity_break_and_not_another_target():
-    """An identity break as on a simulated V2_02 flight: the followed car F is missed for
-    two frames and comes back with its box jumped back (the drone turned), so far from the
-    track's constant-velocity prediction that the association starts a new track. The chain
-    goes on with F's new track (its first box overlaps F's last one), and never takes the
-    other car P's track."""
-    boxes, classes, who = [], [], []
-    for k in range(30):
-        x = 100.0 + 20 * k - 110.0 * (k >= 14)  # at 14: 50 px behind frame 11's box
-        f = [x, 100.0, x + 100.0, 160.0]
-        p = [600.0 - 5 * k, 300.0, 700.0 - 5 * k, 380.0]
-        frame, names = ([p], ["P"]) if k in (12, 13) else ([f, p], ["F", "P"])
-        boxes.append(np.array(frame))
-        classes.append(np.zeros(len(frame), np.int64))
-        who.append(names)
-    ids = A.assign_track_ids(boxes, classes)
-    f_tracks = {int(i) for frame_ids, names in zip(ids, who, strict=True)
-                for i, n in zip(frame_ids, names, strict=True) if n == "F"}
-    assert len(f_tracks) == 2  # the identity break
-    first = int(ids[0][0])
-    pick = A.followed_detections(ids, boxes, classes, first)
-    for k, names in enumerate(who):
-        if "F" in names:
-            assert pick[k] >= 0 and names[pick[k]] == "F", (k, names, pick[k])
-        else:
-            assert pick[k] == -1
-    # started from the later track, the chain runs backwards through the first
-    later = (f_tracks - {first}).pop()
-    np.testing.assert_array_equal(A.followed_detections(ids, boxes, classes, later), pick)
-    # stitching and re-acquiring off: the chain is the chosen track only
-    alone = A.followed_detections(ids, boxes, classes, first,
-                                  A.AssociateConfig(stitch_iou=1.0, reacquire=False))
-    assert (alone[:12] >= 0).all() and (alone[12:] < 0).all()
-    # stitching off, re-acquiring on: F's new track is the first to appear after the break
-    # (P, seen all along, is another target)
-    again = A.followed_detections(ids, boxes, classes, first,
-                                  A.AssociateConfig(stitch_iou=1.0, reacquire=True))
-    np.testing.assert_array_equal(again, pick)
-
-
-def test_a_target_back_in_view_is_reacquired_if_it_could_have_got_there():
-    """F is followed for 10 frames, leaves the image for 10, and comes back elsewhere in the
-    image (no box overlaps); a car Q appears first, 2 frames before F: the chain skips Q
-    (the plausibility check rejects it) and re-acquires F. Backwards the same."""
-    boxes, classes, who = [], [], []
-    for k in range(40):
-        frame, names = [], []
-        if k < 10:
-            frame.append([100.0 + 10 * k, 100.0, 200.0 + 10 * k, 160.0]), names.append("F")
-        if k >= 20:
-            frame.append([500.0 - 5 * k, 300.0, 600.0 - 5 * k, 380.0]), names.append("F")
-        if 18 <= k < 30:
-            frame.append([600.0, 50.0, 700.0, 120.0]), names.append("Q")
-        boxes.append(np.array(frame).reshape(-1, 4))
-        classes.append(np.zeros(len(frame), np.int64))
-        who.append(names)
-    ids = A.assign_track_ids(boxes, classes)
-    asked = []
-
-    def plausible(k_end, i_end, k, i):
-        asked.append((who[k_end][i_end], who[k][i]))
-        return who[k][i] == "F"
-
-    first = int(ids[0][0])
-    config = A.AssociateConfig(reacquire=True)
-    pick = A.followed_detections(ids, boxes, classes, first, config, plausible)
-    for k, names in enumerate(who):
-        assert (pick[k] >= 0 and names[pick[k]] == "F") if "F" in names else pick[k] == -1
-    assert asked == [("F", "Q"), ("F", "F")]
-    later = int(ids[25][who[25].index("F")])
-    np.testing.assert_array_equal(
-        A.followed_detections(ids, boxes, classes, later, config, plausible), pick)
-    # no check: the first car to appear is taken; off (the default): F's first track only
-    blind = A.followed_detections(ids, boxes, classes, first, config)
-    assert who[18][blind[18]] == "Q"
-    assert (A.followed_detections(ids, boxes, classes, first)[10:] == -1).all()
 
 
 def test_a_part_boxed_beside_its_target_is_dropped_and_other_targets_kept():
@@ -284,25 +199,6 @@ def test_box_iou_against_hand_values():
     np.testing.assert_allclose(iou, [[50.0 / 150.0, 0.0, 1.0]])
 
 
-def test_a_chain_bridges_a_few_undetected_frames_at_the_image_edge():
-    """A car at the right edge goes undetected for 8 frames and comes back where it was, as
-    a new track: ``stitch_gap`` 10 bridges the gap, 5 does not."""
-    boxes, classes = [], []
-    for k in range(30):
-        frame = [] if 10 <= k < 18 else [[650.0, 200.0 + k, 752.0, 320.0 + k]]
-        boxes.append(np.array(frame).reshape(-1, 4))
-        classes.append(np.zeros(len(frame), np.int64))
-    ids = A.assign_track_ids(boxes, classes)
-    assert int(ids[0][0]) != int(ids[29][0])  # the association ended the first track
-    short = A.followed_detections(ids, boxes, classes, int(ids[0][0]),
-                                  A.AssociateConfig(stitch_gap=5))
-    long = A.followed_detections(ids, boxes, classes, int(ids[0][0]),
-                                 A.AssociateConfig(stitch_gap=10))
-    seen = np.array([len(b) > 0 for b in boxes])
-    assert (short[:10] == 0).all() and (short[18:] < 0).all()
-    np.testing.assert_array_equal(long >= 0, seen)
-
-
 def test_a_target_seen_past_another_inside_its_box_is_kept():
     """A far car's box inside a near car's is a part only if the two may be one target."""
     near, far = [150.0, 100.0, 550.0, 480.0], [270.0, 180.0, 520.0, 350.0]
@@ -322,7 +218,7 @@ def test_a_target_seen_past_another_inside_its_box_is_kept():
 
 def test_association_does_not_match_a_box_the_localisation_refuses():
     """Frame 2's box overlaps the track's, but the callback says it is located elsewhere:
-    it starts a new track, and a chain does not stitch onto it either."""
+    it starts a new track."""
     boxes = [np.array([[100.0, 100.0, 300.0, 300.0]]) + k for k in range(4)]
     classes = [np.zeros(1, np.int64)] * 4
     assert [int(i[0]) for i in A.assign_track_ids(boxes, classes)] == [0, 0, 0, 0]
@@ -333,20 +229,5 @@ def test_association_does_not_match_a_box_the_localisation_refuses():
 
     ids = A.assign_track_ids(boxes, classes, A.AssociateConfig(), same)
     assert [int(i[0]) for i in ids] == [0, 0, 1, 1]
-    pick = A.followed_detections(ids, boxes, classes, 0, A.AssociateConfig(), same)
-    np.testing.assert_array_equal(pick, [0, 0, -1, -1])
-    pick = A.followed_detections(ids, boxes, classes, 0, A.AssociateConfig())
-    np.testing.assert_array_equal(pick, [0, 0, 0, 0])  # unchecked, the chain stitches on
 
 
-def test_a_chain_does_not_stitch_onto_a_target_boxed_beside_it():
-    """The chain's track (a far car) starts at frame 5 beside a near car's longer track
-    whose boxes overlap it: that track is another target, not the chain's past."""
-    near = [[100.0, 100.0, 400.0, 400.0]] * 10
-    boxes = [np.array([near[k]] + ([[200.0, 150.0, 380.0, 330.0]] if k >= 5 else []))
-             for k in range(10)]
-    classes = [np.zeros(len(b), np.int64) for b in boxes]
-    ids = [np.array([0] + ([1] if k >= 5 else [])) for k in range(10)]
-    assert A.box_iou(boxes[5][:1], boxes[5][1:])[0, 0] > 0.3
-    pick = A.followed_detections(ids, boxes, classes, 1)
-    np.testing.assert_array_equal(pick, [-1] * 5 + [1] * 5)

@@ -24,7 +24,13 @@ Modules, one job each:
 * :mod:`~uavcal_jax.pipeline.run`: ``uavcal run``: offset, VIO + detector, target, set-points.
 * :mod:`~uavcal_jax.pipeline.run_config`: ``RunConfig``, the run's settings (``--set``).
 * :mod:`~uavcal_jax.pipeline.detectors`: ``Detector``; the trained and the label-box ones.
-* :mod:`~uavcal_jax.pipeline.targets`: detections -> the followed track, located, filtered.
+* :mod:`~uavcal_jax.pipeline.tracker`: the online target stage, one frame at a time
+  (association, the followed target, localisation (:mod:`~uavcal_jax.pipeline.tracker_locate`),
+  heading, filter and follow set-point).
+* :mod:`~uavcal_jax.pipeline.targets`: the tracker folded over a recording (``uavcal run``).
+* :mod:`~uavcal_jax.pipeline.closed_loop`: the drone flies the tracker's set-points in the
+  simulator (:mod:`~uavcal_jax.pipeline.closed_loop_world`,
+  :mod:`~uavcal_jax.pipeline.closed_loop_metrics`).
 * :mod:`~uavcal_jax.pipeline.run_metrics`: the run against the truth, follow figures, timings.
 * :mod:`~uavcal_jax.pipeline.run_outputs`: the output folder's files and ``metrics.json``.
 * :mod:`~uavcal_jax.pipeline.drift`: the long-flight drift runs (dead reckoning and the VIO,

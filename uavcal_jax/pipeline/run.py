@@ -9,10 +9,9 @@ Steps (RPEOD section 6.3 on a calibrated IMU):
 2. the stereo VIO (:func:`uavcal_jax.vio.run.run_vio`) on the IMU minus that offset,
 3. *concurrently* with the detector on every ``detect.every``-th left frame, in a worker
    thread (as the VIO pipelines its own front end; XLA and OpenCV release the GIL);
-4. the target: the chosen class's longest track, each box located (depth, or stereo
-   disparity), filtered (:mod:`uavcal_jax.pipeline.targets`);
-5. the follow set-points (:func:`uavcal_jax.track.follow.follow_setpoints`) from the
-   filtered target and the VIO's pose, the yaw started from the left camera's heading.
+4. the target and the follow set-points: the online tracker over the frames
+   (:mod:`uavcal_jax.pipeline.targets`): the chosen class's track seen longest so far, each
+   box located (depth, or stereo disparity), filtered, and followed from the VIO's pose.
 
 The files written in ``out_dir`` (:mod:`uavcal_jax.pipeline.run_outputs`) are named by
 :data:`~uavcal_jax.pipeline.run_outputs.OUTPUT_FILES`; the figures are drawn by
@@ -27,7 +26,6 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import jax
 import numpy as np
 
 from uavcal_jax.data.read import read_sequence
@@ -44,7 +42,7 @@ from uavcal_jax.pipeline.run_metrics import Evaluation, evaluate, follow_metrics
 from uavcal_jax.pipeline.run_outputs import build_metrics, write_outputs
 from uavcal_jax.pipeline.targets import TargetResult, build_localizer, track_target
 from uavcal_jax.progress import progress as progress_bar
-from uavcal_jax.track import UNSEEN, Setpoint, follow_setpoints
+from uavcal_jax.track import Setpoint
 from uavcal_jax.vio.run import VioResult, run_vio
 
 __all__ = ["DetectionBoard", "RunResult", "run_pipeline"]
@@ -196,32 +194,6 @@ def _poses(vio: VioResult) -> list[np.ndarray | None]:
     return out
 
 
-def _follow(times_s: np.ndarray, target: TargetResult, poses, T_BC: np.ndarray,
-            config: RunConfig) -> tuple[Setpoint, tuple[float, float]]:
-    """Step 5 over all frames (twice: the first call compiles), from the first pose's
-    position and the left camera's heading."""
-    have = [k for k, T in enumerate(poses) if T is not None]
-    drone = np.full((len(poses), 3), np.nan)
-    for k in have:
-        drone[k] = poses[k][:3, 3]
-    # frames without a pose: the nearest earlier pose (the first pose before it)
-    last = drone[have[0]]
-    for k in range(len(poses)):
-        last = drone[k] if poses[k] is not None else last
-        drone[k] = last
-    axis = poses[have[0]][:3, :3] @ T_BC[:3, 2]  # the left camera's optical axis, world
-    start = Setpoint(drone[0], np.arctan2(axis[1], axis[0]))
-    known = target.filtered.status != UNSEEN
-    ms = []
-    for _ in range(2):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(follow_setpoints(times_s, target.filtered.position, known,
-                                                     drone, start, config.follow))
-        ms.append(1e3 * (time.perf_counter() - t0))
-    return Setpoint(np.asarray(out.position, np.float64), np.asarray(out.yaw, np.float64)), \
-        tuple(ms)
-
-
 def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig | None = None,
                  *, offsets=None, offsets_from: str = "given", detector: Detector | None = None,
                  progress: bool = True, inputs: dict | None = None) -> RunResult:
@@ -273,11 +245,10 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
     target = track_target(sequence, detections, detector.class_names, poses, config, localizer)
     cam0 = sequence.camera("cam0")
     times_s = (cam0.t_ns - cam0.t_ns[0]).astype(np.float64) * 1e-9
-    setpoints, follow_ms = _follow(times_s, target, poses, np.asarray(cam0.calibration.T_BS),
-                                   config)
+    setpoints = target.setpoints
     track_s = time.perf_counter() - t0
     evaluation = evaluate(sequence, trajectory, target, setpoints.position)
-    ms, compile_s = stage_timings([f.timings for f in vio.frames], detect_ms, target, follow_ms,
+    ms, compile_s = stage_timings([f.timings for f in vio.frames], detect_ms, target,
                                   len(cam0), config.detect.every, config.warmup_frames)
     follow = follow_metrics(times_s, setpoints.position, setpoints.yaw, target, evaluation,
                             config, detected_frames)

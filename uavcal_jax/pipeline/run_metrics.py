@@ -216,7 +216,7 @@ def _ms(values) -> dict | None:
 
 
 def stage_timings(vio_timings: list[dict], detect_ms: np.ndarray, target: TargetResult,
-                  follow_ms: tuple[float, float], frames: int, every: int, warmup: int
+                  frames: int, every: int, warmup: int
                   ) -> tuple[dict, dict]:
     """``(ms_per_frame, compile_s)``.
 
@@ -226,7 +226,7 @@ def stage_timings(vio_timings: list[dict], detect_ms: np.ndarray, target: Target
     detector ran beside it), ``detect`` (per detected frame: image load and network),
     ``locate`` (per located box, with ``boxes_per_frame``: association locates every box of
     the class followed that could continue a track, not the followed box alone), ``filter``
-    and ``follow`` (one scan over all frames, second call, per frame), and ``pipeline``: what
+    and ``follow`` (the tracker's step per frame), and ``pipeline``: what
     a frame costs when the detector runs concurrently with the VIO, ``max(vio_wall, detect /
     every) + locate * boxes_per_frame + filter + follow`` (of the means, and of the medians:
     on a shared CPU the mean carries other processes' stalls).
@@ -240,15 +240,15 @@ def stage_timings(vio_timings: list[dict], detect_ms: np.ndarray, target: Target
     boxes_per_frame = target.locate_ms.size / max(frames, 1)
     if ms["locate"] is not None:
         ms["locate"]["boxes_per_frame"] = boxes_per_frame
-    ms["filter"] = {"mean": target.filter_ms[1] / max(frames, 1), "p95": None, "frames": frames}
-    ms["follow"] = {"mean": follow_ms[1] / max(frames, 1), "p95": None, "frames": frames}
+    ms["filter"] = _ms(target.filter_ms[warmup:])
+    ms["follow"] = _ms(target.follow_ms[warmup:])
 
     def mean(key, stat="mean"):
         return 0.0 if ms[key] is None else ms[key].get(stat, ms[key]["mean"])
 
     ms["pipeline"] = {stat: max(mean("vio_wall", stat), mean("detect", stat) / every)
-                      + mean("locate", stat) * boxes_per_frame + mean("filter")
-                      + mean("follow")
+                      + mean("locate", stat) * boxes_per_frame + mean("filter", stat)
+                      + mean("follow", stat)
                       for stat in ("mean", "median")} | {"p95": None, "frames": frames}
     first_vio = vio_timings[0].get("total", np.nan) if vio_timings else np.nan
     compile_s = {
@@ -258,7 +258,9 @@ def stage_timings(vio_timings: list[dict], detect_ms: np.ndarray, target: Target
                                                        / 1e3),
         "locate": None if target.locate_ms.size == 0 else max(
             0.0, (target.locate_ms[0] - mean("locate")) / 1e3),
-        "filter": max(0.0, (target.filter_ms[0] - target.filter_ms[1]) / 1e3),
-        "follow": max(0.0, (follow_ms[0] - follow_ms[1]) / 1e3),
+        "filter": None if target.filter_ms.size == 0 else max(
+            0.0, (target.filter_ms[0] - mean("filter")) / 1e3),
+        "follow": None if target.follow_ms.size == 0 else max(
+            0.0, (target.follow_ms[0] - mean("follow")) / 1e3),
     }
     return ms, compile_s

@@ -16,18 +16,18 @@ project (NumPy, JAX, SciPy, and OpenCV for the stereo path). Modules, one job ea
   (continuous white-noise acceleration, chi-square gating, predict while unseen, lost and
   re-initialised), one ``lax.scan`` over frames (:class:`FilterConfig`).
 * :mod:`~uavcal_jax.track.associate`: detections -> track ids (Hungarian matching on IoU with
-  constant-velocity boxes), the longest track of a class, and the chain of tracks that
-  follows one target through identity breaks (NumPy).
+  constant-velocity boxes), online (:class:`Associator`) or over all frames (NumPy).
+* :mod:`~uavcal_jax.track.chain`: the target to follow among the tracks, chosen frame by frame
+  and continued through identity breaks (:class:`FollowedChain`, NumPy).
 * :mod:`~uavcal_jax.track.follow`: follow set-points at a stand-off distance and height,
   facing the target, rate-limited (:class:`FollowConfig`). Jitted JAX.
 """
 
 from uavcal_jax.track.associate import (
     AssociateConfig,
+    Associator,
     assign_track_ids,
     contained_duplicates,
-    followed_detections,
-    longest_track,
 )
 from uavcal_jax.track.filter import (
     LOST,
@@ -51,6 +51,7 @@ __all__ = [
     "TRACKING",
     "UNSEEN",
     "AssociateConfig",
+    "Associator",
     "FilterConfig",
     "FilterOutput",
     "FollowConfig",
@@ -63,8 +64,6 @@ __all__ = [
     "cut_by_border",
     "follow_setpoints",
     "follow_step",
-    "followed_detections",
     "locate_box",
-    "longest_track",
     "run_filter",
 ]

@@ -53,6 +53,8 @@ __all__ = [
     "UNSEEN",
     "FilterConfig",
     "FilterOutput",
+    "filter_start",
+    "filter_step",
     "run_filter",
     "transition",
     "white_noise_acceleration_q",
@@ -244,6 +246,24 @@ def _step(config: FilterConfig, carry: _Carry, frame):
     return new_carry, out
 
 
+def filter_start(t, dtype) -> _Carry:
+    """The filter's state before its first frame at time ``t`` (seconds): nothing seen."""
+    return _Carry(x=jnp.zeros(6, dtype), P=jnp.eye(6, dtype=dtype), t=jnp.asarray(t, dtype),
+                  t_used=jnp.asarray(jnp.nan, dtype), active=jnp.asarray(False),
+                  gated_run=jnp.zeros((), jnp.int32))
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def filter_step(carry: _Carry, t, z, R, valid, config: FilterConfig = FilterConfig()
+                ) -> tuple[_Carry, FilterOutput]:
+    """One frame of :func:`run_filter` (the step it scans): the state after the frame at time
+    ``t`` with measurement ``z`` (3,), covariance ``R`` (3, 3) and ``valid`` () bool, and the
+    frame's :class:`FilterOutput` (no frame axis). Start from :func:`filter_start`."""
+    dtype = carry.x.dtype
+    return _step(config, carry, (jnp.asarray(t, dtype), jnp.asarray(z, dtype),
+                                 jnp.asarray(R, dtype), jnp.asarray(valid, bool)))
+
+
 @functools.partial(jax.jit, static_argnames="config")
 def run_filter(times: jax.Array, measurements: jax.Array, covariances: jax.Array,
                valid: jax.Array, config: FilterConfig = FilterConfig()) -> FilterOutput:
@@ -263,11 +283,7 @@ def run_filter(times: jax.Array, measurements: jax.Array, covariances: jax.Array
     measurements = jnp.asarray(measurements)
     dtype = measurements.dtype
     times = jnp.asarray(times, dtype)
-    carry = _Carry(
-        x=jnp.zeros(6, dtype), P=jnp.eye(6, dtype=dtype),
-        t=times[0], t_used=jnp.asarray(jnp.nan, dtype), active=jnp.asarray(False),
-        gated_run=jnp.zeros((), jnp.int32),
-    )
+    carry = filter_start(times[0], dtype)
     frames = (times, measurements, jnp.asarray(covariances, dtype), jnp.asarray(valid, bool))
     _, out = jax.lax.scan(functools.partial(_step, config), carry, frames)
     return out

@@ -1,0 +1,40 @@
+"""pipeline.tracker: the online target stage over frames with boxes, frames without, frames
+the detector skipped and a target re-acquired long after its last box; without a pose the
+follow set-point waits, with one it starts at the pose, held while nothing is known."""
+
+import dataclasses
+
+import numpy as np
+
+from uavcal_jax.detect.predict import ImageDetections
+from uavcal_jax.pipeline.run_config import RunConfig
+from uavcal_jax.pipeline.tracker import TargetTracker
+from uavcal_jax.pipeline.tracker_locate import FrameSensors, Localizer
+from uavcal_jax.sim.config import SimConfig, camera_calibrations
+from uavcal_jax.track import UNSEEN
+
+
+def test_frames_without_boxes_and_a_target_reacquired_long_after():
+    config = RunConfig()
+    config = dataclasses.replace(config, associate=dataclasses.replace(
+        config.associate, reacquire=True))
+    left = camera_calibrations(SimConfig(resolution=(188, 120)))["cam0"]
+    tracker = TargetTracker(config, 0, Localizer(config, "off", left, reason="off: test"))
+    car = ImageDetections(np.array([[40.0, 40.0, 90.0, 80.0]]), np.ones(1), np.zeros(1, int))
+    elsewhere = ImageDetections(np.array([[120.0, 20.0, 170.0, 60.0]]), np.ones(1),
+                                np.zeros(1, int))
+    none = ImageDetections(np.zeros((0, 4)), np.zeros(0), np.zeros(0, int))
+    frames = [car] * 3 + [None] + [none] * 30 + [elsewhere] * 2  # long past every window
+    T = np.eye(4)
+    out = [tracker.step(0.05 * k, det, None if k < 2 else T, FrameSensors())
+           for k, det in enumerate(frames)]
+    assert [e.track_id for e in out[:3]] == [0, 0, 0]
+    assert out[3].track_ids is None and out[3].track_id is None
+    assert all(e.track_id is None for e in out[4:34])
+    assert [e.track_id for e in out[34:]] == [1, 1]  # a new track, re-acquired
+    np.testing.assert_array_equal(out[35].box, elsewhere.boxes[0])
+    assert out[0].located.reason == "off: test" and not out[0].located.located
+    assert all(int(e.filtered.status) == UNSEEN for e in out)
+    assert out[0].setpoint is None and out[1].setpoint is None  # no pose yet
+    for e in out[2:]:  # started at the first pose, held: nothing known
+        np.testing.assert_array_equal(e.setpoint.position, np.zeros(3))
