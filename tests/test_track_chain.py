@@ -7,6 +7,7 @@ chosen and kept while seen; a box the localisation refuses neither matched nor s
 from __future__ import annotations
 
 import numpy as np
+from track_folds import assign_track_ids
 
 from uavcal_jax.track import associate as A
 from uavcal_jax.track.chain import FollowedChain
@@ -34,7 +35,7 @@ def test_the_online_association_is_assign_track_ids():
              for k in range(12)]
     classes = [np.zeros(len(b), np.int64) for b in boxes]
     _, ids = _follow(boxes)
-    for a, b in zip(ids, A.assign_track_ids(boxes, classes), strict=True):
+    for a, b in zip(ids, assign_track_ids(boxes, classes), strict=True):
         np.testing.assert_array_equal(a, b)
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.integrate import simpson
 from scipy.stats import chi2
+from track_folds import run_filter
 
 from uavcal_jax.track import filter as F
 
@@ -68,7 +69,7 @@ def test_nees_is_consistent_over_monte_carlo_runs(x64):
     times = np.arange(n_frames) * DT
     R = np.broadcast_to(r_sigma ** 2 * np.eye(3), (runs, n_frames, 3, 3))
     valid = np.ones((runs, n_frames), bool)
-    out = jax.vmap(functools.partial(F.run_filter, config=config), in_axes=(None, 0, 0, 0))(
+    out = jax.vmap(functools.partial(run_filter, config=config), in_axes=(None, 0, 0, 0))(
         times, z, R, valid)
     err = truth - np.concatenate([np.asarray(out.position), np.asarray(out.velocity)], axis=-1)
     nees = np.einsum("rti,rtij,rtj->rt", err, np.linalg.inv(np.asarray(out.covariance)), err)
@@ -91,7 +92,7 @@ def _static_stream(n_frames=120, sigma=0.05, seed=0):
 def test_gate_rejects_a_10_m_outlier():
     times, z, R, valid, truth = _static_stream()
     z[25] += np.array([10.0, 0.0, 0.0])
-    out = F.run_filter(times, z, R, valid, SLOW)
+    out = run_filter(times, z, R, valid, SLOW)
     gated = np.asarray(out.gated)
     assert gated[25] and gated.sum() == 1
     status = np.asarray(out.status)
@@ -116,7 +117,7 @@ def test_predicts_while_unseen_then_loses_and_reinitialises():
     jump = np.array([20.0, 0.0, 0.0])
     z[100:] += jump  # reappears elsewhere: only a reset accepts it
     cfg = SLOW
-    out = F.run_filter(times, z, R, valid, cfg)
+    out = run_filter(times, z, R, valid, cfg)
     status, pos = np.asarray(out.status), np.asarray(out.position)
 
     assert np.all(status[:5] == F.UNSEEN) and np.all(np.isnan(pos[:5]))
@@ -139,7 +140,7 @@ def test_predicts_while_unseen_then_loses_and_reinitialises():
 
 def test_filter_is_one_compiled_scan():
     times, z, R, valid, _ = _static_stream(n_frames=10)
-    jaxpr = jax.make_jaxpr(lambda *a: F.run_filter(*a, config=F.FilterConfig()))(
+    jaxpr = jax.make_jaxpr(lambda *a: run_filter(*a, config=F.FilterConfig()))(
         times, z, R, valid)
     assert "scan" in str(jaxpr)
     with pytest.raises(ValueError):
@@ -157,12 +158,12 @@ def test_a_run_of_gated_measurements_reinitialises_on_the_target():
     z[10] = [10.0, 0.0, 0.0]
     R = np.tile(0.01 * np.eye(3), (T, 1, 1))
     valid = np.ones(T, bool)
-    out = F.run_filter(t, z, R, valid, F.FilterConfig(reinit_after_gated=5))
+    out = run_filter(t, z, R, valid, F.FilterConfig(reinit_after_gated=5))
     gated = np.asarray(out.gated)
     assert gated[10] and np.asarray(out.status)[11] == F.TRACKING
     assert gated[20:24].all() and not gated[24:].any()
     assert np.linalg.norm(np.asarray(out.position)[24] - z[24]) < 0.2
-    never = F.run_filter(t, z, R, valid, F.FilterConfig(reinit_after_gated=0))
+    never = run_filter(t, z, R, valid, F.FilterConfig(reinit_after_gated=0))
     assert np.asarray(never.gated)[20:].all()
 
 
@@ -173,7 +174,7 @@ def test_prediction_coasts_then_holds():
     z = np.stack([2.0 * t, np.zeros_like(t), np.zeros_like(t)], axis=1)
     R = np.tile(0.001 * np.eye(3), (60, 1, 1))
     valid = t < 1.0
-    out = F.run_filter(t, z, R, valid, F.FilterConfig(accel_psd=1.0, coast_after=0.5))
+    out = run_filter(t, z, R, valid, F.FilterConfig(accel_psd=1.0, coast_after=0.5))
     x = np.asarray(out.position)[:, 0]
     last = np.flatnonzero(valid)[-1]
     assert x[last + 5] == pytest.approx(x[last] + 2.0 * 0.25, abs=0.05)  # still moving
@@ -197,7 +198,7 @@ def test_a_ground_target_never_climbs_but_its_height_follows_the_measurements(x6
     R = np.broadcast_to(0.05 ** 2 * np.eye(3), (n, 3, 3))
     config = F.FilterConfig(accel_psd=1.0, vertical_accel_psd=0.0, vertical_velocity_sigma=0.0,
                             height_walk_psd=1.0, lost_after=5.0)
-    out = F.run_filter(times, z, R, valid, config)
+    out = run_filter(times, z, R, valid, config)
     vel, pos = np.asarray(out.velocity), np.asarray(out.position)
     np.testing.assert_array_equal(vel[:, 2], 0.0)
     assert abs(pos[39, 2] - 0.4) < 0.1  # followed the raised heights

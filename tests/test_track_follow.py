@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from track_folds import assign_track_ids, follow_setpoints
 
 from uavcal_jax.track import associate as A
 from uavcal_jax.track import follow as W
@@ -83,12 +84,12 @@ def test_equivariant_to_rotating_and_translating_the_world():
     known = np.ones(n, bool)
     known[40:45] = False
     start = W.Setpoint(drones[0], 0.2)
-    base = W.follow_setpoints(times, targets, known, drones, start, CFG)
+    base = follow_setpoints(times, targets, known, drones, start, CFG)
 
     theta, shift = 2.3, np.array([10.0, -4.0, 1.5])
     c, s = np.cos(theta), np.sin(theta)
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    moved = W.follow_setpoints(times, targets @ Rz.T + shift, known, drones @ Rz.T + shift,
+    moved = follow_setpoints(times, targets @ Rz.T + shift, known, drones @ Rz.T + shift,
                                W.Setpoint(drones[0] @ Rz.T + shift, 0.2 + theta), CFG)
     np.testing.assert_allclose(np.asarray(moved.position),
                                np.asarray(base.position) @ Rz.T + shift, atol=1e-4)
@@ -102,7 +103,7 @@ def test_yaw_wraps_the_short_way_at_pi():
     drone = np.array([0.0, 0.0, 2.0])
     target = drone + 4.0 * np.array([np.cos(-3.0), np.sin(-3.0), 0.0])
     n = 20
-    out = W.follow_setpoints(np.arange(n) * DT, np.broadcast_to(target, (n, 3)),
+    out = follow_setpoints(np.arange(n) * DT, np.broadcast_to(target, (n, 3)),
                              np.ones(n, bool), np.broadcast_to(drone, (n, 3)),
                              W.Setpoint(drone, 3.0), CFG)
     yaw = np.asarray(out.yaw)
@@ -166,7 +167,7 @@ def _crossing(n=21):
 
 def test_association_keeps_ids_through_a_crossing_and_missed_frames():
     boxes, classes, truth = _crossing()
-    ids = A.assign_track_ids(boxes, classes, A.AssociateConfig(min_iou=0.1, max_missed=3))
+    ids = assign_track_ids(boxes, classes, A.AssociateConfig(min_iou=0.1, max_missed=3))
     mapping: dict[str, set[int]] = {}
     for frame_ids, frame_truth in zip(ids, truth, strict=True):
         for i, name in zip(frame_ids, frame_truth, strict=True):
@@ -221,13 +222,13 @@ def test_association_does_not_match_a_box_the_localisation_refuses():
     it starts a new track."""
     boxes = [np.array([[100.0, 100.0, 300.0, 300.0]]) + k for k in range(4)]
     classes = [np.zeros(1, np.int64)] * 4
-    assert [int(i[0]) for i in A.assign_track_ids(boxes, classes)] == [0, 0, 0, 0]
+    assert [int(i[0]) for i in assign_track_ids(boxes, classes)] == [0, 0, 0, 0]
     jump = 2  # the first frame of the other target
 
     def same(k_a, i_a, k_b, i_b):
         return (k_a < jump) == (k_b < jump)
 
-    ids = A.assign_track_ids(boxes, classes, A.AssociateConfig(), same)
+    ids = assign_track_ids(boxes, classes, A.AssociateConfig(), same)
     assert [int(i[0]) for i in ids] == [0, 0, 1, 1]
 
 

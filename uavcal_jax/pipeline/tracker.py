@@ -19,8 +19,7 @@ One :meth:`TargetTracker.step`, causal (it sees nothing after its frame):
    believed (:func:`uavcal_jax.track.heading.heading_step`: the box's shape, and the velocity
    at the frame before of a filter of the centres at the shapes' heading alone), the
    heading's spread and what the image border hides added to the covariance;
-4. one step of the target filter (:func:`uavcal_jax.track.filter.filter_step`, the step
-   :func:`~uavcal_jax.track.filter.run_filter` scans);
+4. one step of the target filter (:func:`uavcal_jax.track.filter.filter_step`);
 5. one step of the follow law (:func:`uavcal_jax.track.follow.follow_step`) from the pose's
    position (the last pose's where the frame has none), started at the first pose from its
    position and the left camera's heading.

@@ -26,7 +26,6 @@ project (NumPy, JAX, SciPy, and OpenCV for the stereo path). Modules, one job ea
 from uavcal_jax.track.associate import (
     AssociateConfig,
     Associator,
-    assign_track_ids,
     contained_duplicates,
 )
 from uavcal_jax.track.filter import (
@@ -37,9 +36,8 @@ from uavcal_jax.track.filter import (
     UNSEEN,
     FilterConfig,
     FilterOutput,
-    run_filter,
 )
-from uavcal_jax.track.follow import FollowConfig, Setpoint, follow_setpoints, follow_step
+from uavcal_jax.track.follow import FollowConfig, Setpoint, follow_step
 from uavcal_jax.track.heading import HeadingConfig
 from uavcal_jax.track.locate import REASONS, LocateConfig, Located, cut_by_border, locate_box
 
@@ -59,11 +57,8 @@ __all__ = [
     "LocateConfig",
     "Located",
     "Setpoint",
-    "assign_track_ids",
     "contained_duplicates",
     "cut_by_border",
-    "follow_setpoints",
     "follow_step",
     "locate_box",
-    "run_filter",
 ]

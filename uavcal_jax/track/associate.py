@@ -29,12 +29,12 @@ says it is another target seen past the larger one.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["AssociateConfig", "Associator", "assign_track_ids", "box_iou", "contained_duplicates"]
+__all__ = ["AssociateConfig", "Associator", "box_iou", "contained_duplicates"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,8 +146,9 @@ class _Track:
 
 
 class Associator:
-    """:func:`assign_track_ids` one frame at a time (its state: the live tracks and the next id);
-    frames are counted by the calls to :meth:`step`."""
+    """Track ids for the detections of one frame after another: Hungarian
+    matching on IoU (its state: the live tracks and the next id); frames are counted by the
+    calls to :meth:`step`."""
 
     def __init__(self, config: AssociateConfig = AssociateConfig()):
         self.config = config
@@ -162,8 +163,11 @@ class Associator:
 
     def step(self, frame_boxes: np.ndarray, frame_classes: np.ndarray,
              same: Callable[[int, int, int, int], bool] | None = None) -> np.ndarray:
-        """(N,) track ids of the next frame's boxes (N, 4) of classes (N,) (``same`` as in
-        :func:`assign_track_ids`, its frames counted as here)."""
+        """(N,) track ids (0, 1, 2, ... in order of first appearance) of the next frame's
+        boxes (N, 4) of classes (N,). ``same(k_last, i_last, k, i)``: may box ``i`` of frame
+        ``k`` be the target of a track whose last box was ``i_last`` of frame ``k_last``?
+        Asked of the pairs that overlap enough to match; a pair it refuses is not matched
+        (``None``: yes)."""
         config = self.config
         k = self.frame = self.frame + 1
         frame_boxes = np.asarray(frame_boxes, np.float64).reshape(-1, 4)
@@ -196,26 +200,3 @@ class Associator:
             ids[c] = self.next_id
             self.next_id += 1
         return ids
-
-
-def assign_track_ids(boxes: Sequence[np.ndarray], class_ids: Sequence[np.ndarray],
-                     config: AssociateConfig = AssociateConfig(),
-                     same: Callable[[int, int, int, int], bool] | None = None
-                     ) -> list[np.ndarray]:
-    """Track ids for every detection of every frame (:class:`Associator` over the frames).
-
-    Args:
-        boxes: per frame, (N_k, 4) detected boxes.
-        class_ids: per frame, (N_k,) their class ids.
-        config: :class:`AssociateConfig`.
-        same: ``same(k_last, i_last, k, i)``: may box ``i`` of frame ``k`` be the target of
-            a track whose last box was ``i_last`` of frame ``k_last``? Asked of the pairs that
-            overlap enough to match; a pair it refuses is not matched (``None``: yes).
-
-    Returns:
-        per frame, (N_k,) int track ids (0, 1, 2, ... in order of first appearance).
-    """
-    if len(boxes) != len(class_ids):
-        raise ValueError(f"{len(boxes)} frames of boxes but {len(class_ids)} of class ids")
-    associator = Associator(config)
-    return [associator.step(b, c, same) for b, c in zip(boxes, class_ids, strict=True)]

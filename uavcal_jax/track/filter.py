@@ -55,7 +55,6 @@ __all__ = [
     "FilterOutput",
     "filter_start",
     "filter_step",
-    "run_filter",
     "transition",
     "white_noise_acceleration_q",
 ]
@@ -256,34 +255,9 @@ def filter_start(t, dtype) -> _Carry:
 @functools.partial(jax.jit, static_argnames="config")
 def filter_step(carry: _Carry, t, z, R, valid, config: FilterConfig = FilterConfig()
                 ) -> tuple[_Carry, FilterOutput]:
-    """One frame of :func:`run_filter` (the step it scans): the state after the frame at time
+    """One frame of the filter: the state after the frame at time
     ``t`` with measurement ``z`` (3,), covariance ``R`` (3, 3) and ``valid`` () bool, and the
     frame's :class:`FilterOutput` (no frame axis). Start from :func:`filter_start`."""
     dtype = carry.x.dtype
     return _step(config, carry, (jnp.asarray(t, dtype), jnp.asarray(z, dtype),
                                  jnp.asarray(R, dtype), jnp.asarray(valid, bool)))
-
-
-@functools.partial(jax.jit, static_argnames="config")
-def run_filter(times: jax.Array, measurements: jax.Array, covariances: jax.Array,
-               valid: jax.Array, config: FilterConfig = FilterConfig()) -> FilterOutput:
-    """Filter a target's world positions over ``T`` frames.
-
-    Args:
-        times: (T,) frame times, seconds, non-decreasing.
-        measurements: (T, 3) measured world positions, metres (anything where invalid).
-        covariances: (T, 3, 3) their covariances, m^2.
-        valid: (T,) bool, a measurement exists (e.g. ``Located.located``); non-finite
-            measurements count as invalid.
-        config: :class:`FilterConfig` (static).
-
-    Returns:
-        :class:`FilterOutput`, one row per frame.
-    """
-    measurements = jnp.asarray(measurements)
-    dtype = measurements.dtype
-    times = jnp.asarray(times, dtype)
-    carry = filter_start(times[0], dtype)
-    frames = (times, measurements, jnp.asarray(covariances, dtype), jnp.asarray(valid, bool))
-    _, out = jax.lax.scan(functools.partial(_step, config), carry, frames)
-    return out

@@ -16,7 +16,7 @@ ArduPilot follow modes, set-points that step and yaw that oscillates:
   short way round, at most ``max_yaw_rate * dt``, and is wrapped.
 
 A target without an estimate holds the set-points; a lost target is followed at its last
-prediction, which :func:`uavcal_jax.track.filter.run_filter` holds in its output.
+prediction, which :func:`uavcal_jax.track.filter.filter_step` holds in its output.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ __all__ = [
     "FollowConfig",
     "Setpoint",
     "desired_position",
-    "follow_setpoints",
     "follow_step",
     "wrap_angle",
 ]
@@ -132,34 +131,3 @@ def follow_step(previous: Setpoint, target, target_known, drone, dt,
     max_turn = config.max_yaw_rate * dt
     yaw = wrap_angle(prev_yaw + jnp.clip(turn, -max_turn, max_turn))
     return Setpoint(position, yaw)
-
-
-@functools.partial(jax.jit, static_argnames="config")
-def follow_setpoints(times, targets, target_known, drone_positions, start: Setpoint,
-                     config: FollowConfig = FollowConfig()) -> Setpoint:
-    """Set-points over ``T`` frames (one ``lax.scan``).
-
-    Args:
-        times: (T,) seconds; the first frame's ``dt`` is 0 (the set-point starts at ``start``).
-        targets: (T, 3) filtered target positions (e.g. ``FilterOutput.position``).
-        target_known: (T,) bool (e.g. ``FilterOutput.status != UNSEEN``).
-        drone_positions: (T, 3) the drone's actual positions.
-        start: the initial :class:`Setpoint` (the drone's pose).
-        config: :class:`FollowConfig` (static).
-
-    Returns:
-        :class:`Setpoint` with ``position`` (T, 3) and ``yaw`` (T,).
-    """
-    times = jnp.asarray(times)
-    dts = jnp.diff(times, prepend=times[:1])
-
-    def step(prev, frame):
-        dt, target, known, drone = frame
-        nxt = follow_step(prev, target, known, drone, dt, config)
-        return nxt, nxt
-
-    start = Setpoint(jnp.asarray(start.position, times.dtype), jnp.asarray(start.yaw, times.dtype))
-    frames = (dts, jnp.asarray(targets, times.dtype), jnp.asarray(target_known, bool),
-              jnp.asarray(drone_positions, times.dtype))
-    _, out = jax.lax.scan(step, start, frames)
-    return out
