@@ -145,7 +145,7 @@ def corrections(recording: str | Path, methods, *, progress: bool = False) -> di
     out: dict[str, dict] = {RAW: {"offset": np.zeros(6), "seconds": 0.0}}
     for method in methods:
         t = time.perf_counter()
-        summary, estimate = predict_offset(recording, method, progress=progress)
+        summary, estimate = predict_offset(sequence, method, progress=progress)
         out[method] = {"offset": np.asarray(estimate.offset, np.float64),
                        "seconds": time.perf_counter() - t, "summary": summary}
     out[TRUE] = {"offset": truth, "seconds": 0.0}
