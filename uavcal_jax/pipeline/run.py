@@ -272,6 +272,26 @@ def _follow(times_s: np.ndarray, target: TargetResult, poses, T_BC: np.ndarray,
         tuple(ms)
 
 
+def _checked(recording: Path, read: tuple[Sequence, str] | None) -> tuple[Sequence, str]:
+    """``(sequence, format)`` of ``recording`` (or the caller's ``read`` of it), with left
+    camera frames and an IMU that covers them, before any work."""
+    sequence, fmt = read_sequence(recording) if read is None else read
+    if "cam0" not in sequence.cameras or len(sequence.camera("cam0")) == 0:
+        raise DataError("the recording has no left camera frames (cam0)", recording)
+    check_imu_covers(sequence)
+    return sequence, fmt
+
+
+def _checked_detector(detector: Detector | None, config: RunConfig) -> Detector:
+    """``detector`` (``None``: the shipped weights), which knows the class to follow."""
+    if detector is None:
+        detector = load_network_detector(None, config.detect.detector_threshold())
+    if config.detect.follow_class not in detector.class_names:
+        raise DataError(f"detect.follow_class={config.detect.follow_class!r} is not a class "
+                        f"of the detector (its classes: {', '.join(detector.class_names)})")
+    return detector
+
+
 def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig | None = None,
                  *, read: tuple[Sequence, str] | None = None, offsets=None,
                  offsets_from: str = "given", detector: Detector | None = None,
@@ -303,15 +323,8 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
     t_start = time.perf_counter()
     config = RunConfig() if config is None else config
     recording, out_dir = Path(recording), Path(out_dir)
-    sequence, fmt = read_sequence(recording) if read is None else read
-    if "cam0" not in sequence.cameras or len(sequence.camera("cam0")) == 0:
-        raise DataError("the recording has no left camera frames (cam0)", recording)
-    check_imu_covers(sequence)
-    if detector is None:
-        detector = load_network_detector(None, config.detect.detector_threshold())
-    if config.detect.follow_class not in detector.class_names:
-        raise DataError(f"detect.follow_class={config.detect.follow_class!r} is not a class "
-                        f"of the detector (its classes: {', '.join(detector.class_names)})")
+    sequence, fmt = _checked(recording, read)
+    detector = _checked_detector(detector, config)
     localizer = build_localizer(sequence, config)
     offset = _offset_before_vio(sequence, config, offsets, offsets_from, progress)
     t0 = time.perf_counter()
@@ -323,8 +336,7 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
     if len(trajectory) == 0:
         raise DataError(f"the VIO never initialised (no frame had "
                         f"{vio.config.min_init_landmarks} stereo corners)", recording)
-    # 2b beside steps 4-5: the accelerometer alignment's solve (and its compilation) runs on
-    # the other core while the target is tracked
+    # 2b beside steps 4-5 (the alignment's solve and compilation on the other core)
     pending = None if offset is not None else _in_thread(_offset_from_vio, sequence, vio, config)
     config = dataclasses.replace(config, vio=vio.config)
     poses = _poses(vio)
