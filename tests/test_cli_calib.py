@@ -384,9 +384,9 @@ def test_transformer_tilts_an_imu_mounted_otherwise_back(euroc_micro, monkeypatc
         sequence, ground_truth=None,
         imu=dataclasses.replace(sequence.imu, gyro=sequence.imu.gyro @ R_BI,
                                 accel=sequence.imu.accel @ R_BI))
-    source = transformer_offset.visual_rotation_source
-    monkeypatch.setattr(transformer_offset, "visual_rotation_source",
-                        lambda folder: (v := source(folder))._replace(R=R_BI.T @ v.R @ R_BI))
+    source = transformer_offset.sequence_rotations
+    monkeypatch.setattr(transformer_offset, "sequence_rotations",
+                        lambda seq: (v := source(seq))._replace(R=R_BI.T @ v.R @ R_BI))
     options = configure_method("transformer")
     with pytest.warns(OutOfDomainWarning, match="tilted"):
         est = run_method("transformer", turned, options)

@@ -6,6 +6,7 @@ omitted with a reason); the real EuRoC slice, which has no target; bad input."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import warnings
@@ -36,6 +37,8 @@ from uavcal_jax.sim.simulate import simulate
 #: is located to 0.4-0.8 m (perspective shifts its box centre off its centre's image). The
 #: CLI run below follows the default class, the car.
 FOLLOW = "person"
+#: The default offset's gyro error bound on this 2 s flight, rad/s.
+GYRO_TOLERANCE = 5e-3
 
 
 @pytest.fixture(scope="module")
@@ -48,17 +51,35 @@ def recording(tmp_path_factory):
     return root
 
 
+#: The VIO passes the module's run made (imu_offset of each), and the recordings it read.
+VIO_CALLS: list = []
+READS: list = []
+
+
 @pytest.fixture(scope="module")
 def result(recording, tmp_path_factory):
+    """The run with the default offset method, its VIO passes and reads counted."""
     from uavcal_jax.data.read import read_sequence
+    from uavcal_jax.pipeline import run as run_module
+    from uavcal_jax.pipeline import vio_bias
 
-    with warnings.catch_warnings():
+    def counted(function, calls):
+        def wrapper(*args, **kwargs):
+            calls.append(args[2] if len(args) > 2 else kwargs.get("imu_offset"))
+            return function(*args, **kwargs)
+        return wrapper
+
+    with warnings.catch_warnings(), pytest.MonkeyPatch.context() as mp:
         warnings.simplefilter("ignore")
-        sequence, _ = read_sequence(recording)
-        config = apply_overrides(RunConfig(), [f"detect.follow_class={FOLLOW}"])
-        return run_pipeline(recording, tmp_path_factory.mktemp("out"), config,
-                            offsets=np.zeros(6), detector=LabelDetector(sequence.targets),
-                            progress=False)
+        read = read_sequence(recording)
+        # 2 s is too short a flight for the accelerometer's alignment: the bias states'
+        config = apply_overrides(RunConfig(), [f"detect.follow_class={FOLLOW}",
+                                               "offset.vio_bias.accel=states"])
+        for module in (run_module, vio_bias):
+            mp.setattr(module, "run_vio", counted(module.run_vio, VIO_CALLS))
+        mp.setattr(run_module, "read_sequence", counted(run_module.read_sequence, READS))
+        return run_pipeline(recording, tmp_path_factory.mktemp("out"), config, read=read,
+                            detector=LabelDetector(read[0].targets), progress=False)
 
 
 def _cli(capsys, *argv):
@@ -89,7 +110,7 @@ def test_outputs_are_well_formed_with_a_pose_at_every_frame(result):
     metrics = json.loads((result.out_dir / "metrics.json").read_text())
     for key in ("ate_m", "offset", "target_error_m", "follow", "ms_per_frame"):
         assert key in metrics
-    assert metrics["offset"]["method"] == "given" and len(metrics["offset"]["true"]) == 6
+    assert metrics["offset"]["method"] == "vio-bias" and len(metrics["offset"]["true"]) == 6
     assert metrics["ms_per_frame"]["pipeline"]["mean"] > 0
     config = json.loads((result.out_dir / "config.json").read_text())
     assert config["inputs"]["sequence"].endswith("rec") and config["follow"]["distance"] > 0
@@ -97,6 +118,50 @@ def test_outputs_are_well_formed_with_a_pose_at_every_frame(result):
     follow = result.config.follow
     assert metrics["follow"]["max_setpoint_speed_mps"] <= follow.max_speed * 1.001
     assert metrics["follow"]["max_yaw_rate_radps"] <= follow.max_yaw_rate * 1.001
+
+
+def test_the_default_offset_is_read_from_the_runs_own_vio_pass(result):
+    """One VIO pass, on the recorded IMU, whose bias states are the ``vio-bias`` estimate
+    (reported, not removed), scored against the truth under its label; the recording read
+    once (by the caller here)."""
+    from uavcal_jax.data.true_offset import true_offset
+    from uavcal_jax.pipeline.vio_bias import from_vio
+
+    assert len(VIO_CALLS) == 1 and VIO_CALLS[0] is None and not READS
+    o = result.metrics["offset"]
+    assert o["method"] == "vio-bias" and o["label"] == "total" and o["removed"] is False
+    blind = dataclasses.replace(result.sequence, ground_truth=None)
+    expected = from_vio(blind, result.vio, result.config.offset.vio_bias)
+    np.testing.assert_array_equal(o["estimate"], expected.offset)
+    true = true_offset("total", None, result.sequence.ground_truth, *expected.span_ns)
+    np.testing.assert_allclose(o["true"], true, atol=1e-12)
+    np.testing.assert_allclose(o["error"], expected.offset - true, atol=1e-12)
+    # the gyro part: the simulated IMU's own bias, within what 2 s of flight allow
+    assert np.all(np.abs(np.asarray(o["error"][:3])) < GYRO_TOLERANCE), o["error"]
+
+
+def test_offset_stage_options_are_set_from_the_run_config():
+    """``offset.method`` and every method's options under ``offset.<name>``; the VIO's
+    settings are the run's one ``vio``."""
+    from uavcal_jax.errors import DataError
+    from uavcal_jax.pipeline.transformer_offset import TransformerOptions
+
+    config = apply_overrides(RunConfig(), [
+        "offset.method=self-calib", "offset.self_calib.windows=3", "vio.solver.max_iterations=3",
+        "offset.visual_ls.every=2", "offset.vio_bias.tail_fraction=0.5",
+        "offset.transformer.kind=last"])
+    options = config.offset.options(config.vio)
+    assert options.windows == 3 and options.vio.solver.max_iterations == 3
+    assert config.offset.visual_ls.every == 2 and config.offset.vio_bias.tail_fraction == 0.5
+    transformer = dataclasses.replace(config.offset, method="transformer").options(config.vio)
+    assert isinstance(transformer, TransformerOptions) and transformer.kind == "last"
+    assert dataclasses.replace(config.offset, method="vio-bias").options(
+        config.vio).vio.solver.max_iterations == 3
+    for bad, needle in (("offset.method=nope", "vio-bias"),
+                        ("offset.vio_bias.vio.solver.max_iterations=2", "vio.*"),
+                        ("offset_method=none", "offset_method")):
+        with pytest.raises(DataError, match=needle):
+            apply_overrides(RunConfig(), [bad])
 
 
 def test_target_located_against_its_true_track(result):

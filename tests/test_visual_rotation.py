@@ -1,5 +1,6 @@
-"""Visual relative rotations from the front end's tracks and the gyro bias they imply
-(``uavcal_jax.vio.visual_rotation``), on a short simulated flight against its ground truth."""
+"""Visual relative rotations from the front end's tracks (``uavcal_jax.vio.visual_rotation``),
+their cache (``rotation_cache``) and the gyro bias they imply (``visual_gyro``), on a short
+simulated flight against its ground truth."""
 
 from __future__ import annotations
 
@@ -15,11 +16,13 @@ from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.imu import add_offset
 from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.simulate import simulate
+from uavcal_jax.vio import rotation_cache as rc
+from uavcal_jax.vio import visual_gyro as vg
 from uavcal_jax.vio import visual_rotation as vr
 from uavcal_jax.vio.initialize import gyro_bias_from_relative_rotations, gyro_bias_from_rotations
 
 OFFSET = np.array([0.03, -0.045, 0.02])  # rad/s, injected into the gyro
-CONFIG = vr.VisualGyroConfig()
+CONFIG = vg.VisualGyroConfig()
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +41,7 @@ def flight(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def rotations(flight):
-    return vr.cached_relative_rotations(flight.root, CONFIG, sequence=flight)
+    return rc.cached_relative_rotations(flight, CONFIG.frontend, every=CONFIG.every)
 
 
 def _angle_deg(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -69,7 +72,7 @@ def test_visual_rotations_match_ground_truth(flight, rotations):
 
 def test_least_squares_recovers_an_injected_gyro_offset(flight, rotations):
     imu = _with_gyro_offset(flight, OFFSET)
-    bg, fit = vr.gyro_bias_least_squares(imu, rotations)
+    bg, fit = vg.gyro_bias_least_squares(imu, rotations)
     truth = _total_bias(flight, OFFSET)
     assert np.abs(bg - truth).max() < 0.002, (bg, truth)  # measured: 0.0009 rad/s
     # the stated covariance is of the right size: the error within 4 sigma per axis
@@ -80,7 +83,7 @@ def test_least_squares_recovers_an_injected_gyro_offset(flight, rotations):
 def test_oracle_rotations_recover_the_offset_almost_exactly(flight, rotations):
     truth_R = vr.true_relative_rotations(flight.ground_truth, rotations.t0_ns, rotations.t1_ns)
     oracle = rotations._replace(R=truth_R, valid=np.ones_like(rotations.valid))
-    bg, fit = vr.gyro_bias_least_squares(_with_gyro_offset(flight, OFFSET), oracle)
+    bg, fit = vg.gyro_bias_least_squares(_with_gyro_offset(flight, OFFSET), oracle)
     # measured 2.7e-4 rad/s: the zero-order hold of 200 Hz samples against the true rotation
     # (half a sample period times the mean angular acceleration) and the gyro's white noise;
     # 1e-4 over 40 s of the same flight
@@ -89,18 +92,34 @@ def test_oracle_rotations_recover_the_offset_almost_exactly(flight, rotations):
 
 
 def test_cache_round_trips_and_is_reused(flight, rotations, monkeypatch):
-    path = vr.cache_path(flight.root, CONFIG)
+    path = rc.cache_path(flight.root)
     assert path.is_file()
 
     def no_tracking(*args, **kwargs):
         raise AssertionError("recomputed despite the cache")
 
-    monkeypatch.setattr(vr, "relative_rotations", no_tracking)
-    again = vr.cached_relative_rotations(flight.root, CONFIG)
+    monkeypatch.setattr(rc, "relative_rotations", no_tracking)
+    again = rc.cached_relative_rotations(flight)
     for name in vr.VisualRotations._fields:
         np.testing.assert_array_equal(getattr(again, name), getattr(rotations, name))
-    # another setting is another file
-    assert vr.cache_path(flight.root, dataclasses.replace(CONFIG, every=3)) != path
+    # the training's entry reads the folder's cache alone
+    read = rc.read_cache(flight.root)
+    np.testing.assert_array_equal(read.R, rotations.R)
+    # another setting is another file (with the same name as before the modules' split: the
+    # caches already written stay valid)
+    assert rc.cache_path(flight.root, every=3) != path
+    assert path.name == "visual_rotations.d8ac3704.npz"
+
+
+def test_the_cache_works_from_the_sequence_given(flight, tmp_path):
+    """A sequence without ground truth, in a folder holding nothing but the cache's output:
+    the cache computes from the sequence's frames and never reads the folder."""
+    copy = tmp_path / "empty"
+    copy.mkdir()
+    blind = dataclasses.replace(flight, ground_truth=None, root=copy)
+    first = rc.cached_relative_rotations(blind)
+    assert [p.name for p in copy.iterdir()] == [rc.cache_path(copy).name]
+    np.testing.assert_array_equal(first.R, rc.cached_relative_rotations(flight).R)
 
 
 def test_relative_form_generalises_the_keyframe_form():

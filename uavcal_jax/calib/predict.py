@@ -8,10 +8,9 @@ windows (robust to the few windows a fast manoeuvre or a dark stretch throws off
 ``K`` vmapped seeds is an ensemble: each window's estimate is the mean of the seeds'.
 
 :func:`predict_on_sequence` does it for a run folder and a
-:class:`~uavcal_jax.data.sequence.Sequence`; :func:`predict_recording` for a run folder and a
-recording's folder, where the offset a simulated recording carries (``sim_config.json``'s
-``config.imu_offset``, written by ``uavcal simulate --imu-offset``,
-:func:`uavcal_jax.data.sim_config.recorded_imu_offset`) is its true offset.
+:class:`~uavcal_jax.data.sequence.Sequence` (the ``transformer`` offset method,
+:mod:`uavcal_jax.pipeline.transformer_offset`, which is scored against the truth by
+:func:`uavcal_jax.pipeline.predict_offset.score`).
 """
 
 from __future__ import annotations
@@ -26,21 +25,19 @@ import numpy as np
 
 from uavcal_jax.calib.batch import frames_to_model, model_imu
 from uavcal_jax.calib.config import CalibRunConfig
-from uavcal_jax.calib.data import Windows, find_sequences, mask_black_frames
+from uavcal_jax.calib.data import Windows, mask_black_frames
 from uavcal_jax.calib.inference import encode_frames, predict_windows
 from uavcal_jax.calib.inject import inject
 from uavcal_jax.calib.loop import first_seed, read_run_config, restore_run
 from uavcal_jax.calib.model import split_prediction
 from uavcal_jax.calib.train import CalibState
-from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.sequence import Sequence
-from uavcal_jax.data.sim_config import recorded_imu_offset
 from uavcal_jax.data.windows import WindowSet, make_windows
 from uavcal_jax.errors import DataError
 
 __all__ = ["SequencePrediction", "channel_names", "expand_to_six", "model_channels",
            "mounting_angle_deg",
-           "predict_on_sequence", "predict_recording", "predict_sequence"]
+           "predict_on_sequence", "predict_sequence"]
 
 GYRO_CHANNELS = ("gx", "gy", "gz")
 ACCEL_CHANNELS = ("ax", "ay", "az")
@@ -180,7 +177,7 @@ def mounting_angle_deg(accel: np.ndarray, training_mean: np.ndarray) -> float:
 
 def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = "best",
                         run: CalibRunConfig | None = None, inject_offset=None,
-                        rotation_source: Callable[[Path], Any] | None = None
+                        rotation_source: Callable[[Sequence], Any] | None = None
                         ) -> tuple[dict, SequencePrediction]:
     """``(info, prediction)`` of the run folder's ``kind`` checkpoint on ``sequence``, cut into
     the run's windows (black frames masked, as in training). Reads nothing of the recording
@@ -191,9 +188,10 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     restored model allows, :data:`~uavcal_jax.calib.loop.INFERENCE_KEYS`, e.g.
     ``model.frame_encoder_dtype``: the frame encoder's operand type, same parameters).
     ``inject_offset``: ``(6,)`` added to the IMU first (only the model's channels are used).
-    ``rotation_source``: for a run with ``window.rotations=visual``, the camera's relative
-    rotations of the recording's folder (as :func:`uavcal_jax.calib.data.load_windows`
-    takes it); ``window.rotations=oracle`` reads the sequence's ground truth.
+    ``rotation_source``: for a run with ``window.rotations=visual``, ``rotation_source(
+    sequence)`` the camera's relative rotations of the sequence
+    (:func:`uavcal_jax.pipeline.motion_inputs.sequence_rotations`: calib may not import the
+    VIO); ``window.rotations=oracle`` reads the sequence's ground truth.
     ``info`` (JSON-ready): ``run``, ``kind``, ``seeds``, ``sensor``, ``channels``,
     ``frame_encoder_dtype``, ``window_s``, ``stride_s``, ``windows``.
 
@@ -207,11 +205,10 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     where = sequence.root if sequence.root is not None else sequence.name
     visual = None
     if window.rotations == "visual":
-        if rotation_source is None or sequence.root is None:
+        if rotation_source is None:
             raise DataError("window.rotations=visual needs the recording's visual rotations "
-                            "(predict_on_sequence's rotation_source and a recording folder)",
-                            where)
-        visual = rotation_source(Path(sequence.root))
+                            "(predict_on_sequence's rotation_source)", where)
+        visual = rotation_source(sequence)
     ws = mask_black_frames(make_windows(sequence, window, visual_rotations=visual), where)
     part = Windows(ws, np.arange(len(ws)), str(where))
     state, seeds = restore_run(run_dir, [part], kind=kind, run=run)
@@ -233,49 +230,3 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
         "windows": int(prediction.per_window.shape[0]),
     }
     return info, prediction
-
-
-def predict_recording(run_dir: str | Path, sequence: str | Path, *, kind: str = "best",
-                      inject_offset=None, run: CalibRunConfig | None = None
-                      ) -> tuple[dict, SequencePrediction]:
-    """``(summary, prediction)`` of :func:`predict_on_sequence` on the EuRoC folder
-    ``sequence``, with the offset the recording declares scored.
-
-    ``inject_offset``: ``(6,)`` added to the recorded IMU first (only the model's channels are
-    used). The true offset is known when ``sequence`` is a simulated recording with an
-    offset (``sim_config.json``) and/or ``inject`` is given: then ``summary`` holds it (the
-    ``injected`` label: the offsets alone), the ``error`` of the median and its ``rmse``.
-    ``summary`` is JSON-ready. ``uavcal calib predict`` scores under the run's own label
-    instead (:mod:`uavcal_jax.pipeline.predict_offset`).
-
-    Raises:
-        DataError: not a run folder, a checkpoint of another configuration or version, a
-            sequence shorter than one window, unreadable data.
-    """
-    run = read_run_config(run_dir) if run is None else run
-    (root,) = find_sequences([sequence])
-    info, prediction = predict_on_sequence(run_dir, read_euroc(root), kind=kind, run=run,
-                                           inject_offset=inject_offset)
-    pick = model_channels(run.model.imu_channels, run.injection.single_sensor)
-    recorded = recorded_imu_offset(sequence)
-    true = None
-    if recorded is not None or inject_offset is not None:
-        true = (np.zeros(6) if recorded is None else recorded) + (
-            np.zeros(6) if inject_offset is None else np.asarray(inject_offset, np.float64))
-        true = true[pick]
-    error = None if true is None else prediction.median - true
-    summary = {
-        **info, "sequence": str(sequence),
-        "offset": prediction.median.tolist(),
-        "per_window_std": prediction.per_window.std(axis=0).tolist(),
-        "sigma": None if prediction.sigma is None else prediction.sigma.tolist(),
-        "per_window": prediction.per_window.tolist(),
-        "window_start_s": prediction.start_s.tolist(),
-        "injected": None if inject_offset is None else np.asarray(inject_offset,
-                                                                  float).tolist(),
-        "recorded": None if recorded is None else recorded.tolist(),
-        "true": None if true is None else true.tolist(),
-        "error": None if error is None else error.tolist(),
-        "rmse": None if error is None else float(np.sqrt(np.mean(np.square(error)))),
-    }
-    return summary, prediction

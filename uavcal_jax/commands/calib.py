@@ -368,14 +368,23 @@ def _headline(summary: dict) -> str:
 def run_predict(args) -> int:
     from uavcal_jax.config import write_config
     from uavcal_jax.data.offset_json import write_offset_json
+    from uavcal_jax.data.read import read_sequence
+    from uavcal_jax.data.sim_config import recorded_imu_offset
     from uavcal_jax.pipeline.offset_estimators import configure_method
-    from uavcal_jax.pipeline.predict_offset import predict_offset
+    from uavcal_jax.pipeline.predict_offset import known_offset, predict_offset, score
 
     enable_compilation_cache()
     options = configure_method(args.method, args.set, checkpoint=args.checkpoint,
                                kind=args.kind, frame_dtype=args.frame_dtype)
-    summary, estimate = predict_offset(args.sequence, args.method, options,
+    sequence, _ = read_sequence(args.sequence)
+    summary, estimate = predict_offset(sequence, args.method, options,
                                        inject=args.inject, progress=not args.json)
+    # the truth, only now: the simulator's record and the ground truth
+    recorded = recorded_imu_offset(args.sequence)
+    summary.update(sequence=str(args.sequence),
+                   recorded=None if recorded is None else recorded.tolist(),
+                   **score(estimate, known_offset(recorded, args.inject),
+                           sequence.ground_truth))
     true = None if summary["true"] is None else np.asarray(summary["true"])
     if args.out is not None:
         if len(estimate.channels) != 6:

@@ -14,9 +14,12 @@ from uavcal_jax.errors import DataError, DataRepairWarning
 
 DESCRIPTION = """\
 The whole job over one recording (an EuRoC/ASL folder, real or simulated, or a ROS bag with an
-IMU and a stereo pair): (1) estimate the IMU offset with `uavcal calib predict`'s default
-method (or take --offsets FILE, or none with --no-offset); (2) run the stereo VIO on the
-corrected IMU while (3) the detector runs on the left camera in a second thread (every frame,
+IMU and a stereo pair), read once: (0) check that the IMU covers every frame; (1) the IMU
+offset: by default (offset.method=vio-bias) the stereo VIO runs on the recorded IMU and the
+offset is read from its own bias states (one VIO pass; reported, not removed); another
+method (--set offset.method=visual-ls|self-calib|transformer, `uavcal calib predict`'s) runs
+first and its estimate is removed, as is --offsets FILE's; --no-offset removes none; (2) run
+the stereo VIO while (3) the detector runs on the left camera in a second thread (every frame,
 or every k-th: --set detect.every=K); (4) take the longest track of the class to follow,
 locate each of its boxes in the world (from the depth image, or from stereo disparity when the
 recording has none) and filter it (constant-velocity Kalman filter); (5) compute follow
@@ -45,14 +48,17 @@ examples:
   uavcal run --sequence sim --out run2 --detector labels --no-offset --json
   uavcal run --sequence ../shared/data/euroc_v101_micro --out run3 --detector runs/det
   uavcal run --sequence sim --out run4 --set detect.every=2 follow.distance=5 filter.accel_psd=2
+  uavcal run --sequence sim --out run5 --set offset.method=visual-ls offset.visual_ls.every=2
 
 --detector: a `uavcal detect train` run folder (its best weights); default the weights shipped
 in the package; `labels`: the recording's own target labels (simulated recordings), a perfect
 detector for measuring the rest of the pipeline.
---set keys are the fields of uavcal_jax/pipeline/run_config.py's RunConfig tree (offset_method,
-vio.*, detect.*, associate.*, locate.*, stereo.*, filter.*, heading.*, follow.*, warmup_frames; the
-stages' own config classes give each default and its meaning); an unknown key's error lists
-the valid ones."""
+--set keys are the fields of uavcal_jax/pipeline/run_config.py's RunConfig tree (offset.method,
+offset.<method>.* with the method's `uavcal calib predict --set` keys: offset.vio_bias.*,
+offset.visual_ls.*, offset.self_calib.*, offset.transformer.{checkpoint,kind,frame_dtype};
+vio.* is the one VIO setting of the run and of its offset method; detect.*, associate.*,
+locate.*, stereo.*, filter.*, heading.*, follow.*, warmup_frames; the stages' own config
+classes give each default and its meaning); an unknown key's error lists the valid ones."""
 
 #: ``--detector`` value that uses the recording's target labels.
 LABELS = "labels"
@@ -72,7 +78,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              '{"offset": [gx, gy, gz, ax, ay, az]} (uavcal calib predict\'s '
                              'output)')
     offset.add_argument("--no-offset", action="store_true",
-                        help="remove no IMU offset (offset_method=none)")
+                        help="remove no IMU offset (offset.method=none)")
     p.add_argument("--detector", default=None, metavar="RUN",
                    help="a `uavcal detect train` run folder, or 'labels' [default: the "
                         "shipped weights]")
@@ -83,14 +89,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _detector(args, config):
+def _detector(args, config, sequence):
     from uavcal_jax.pipeline.detectors import LabelDetector, load_network_detector
 
     if args.detector != LABELS:
         return load_network_detector(args.detector, config.detect.detector_threshold())
-    from uavcal_jax.data.read import read_sequence
-
-    sequence, _ = read_sequence(args.sequence)
     if sequence.targets is None:
         raise DataError("--detector labels needs target labels (mav0/target0), and the "
                         "recording has none", args.sequence)
@@ -105,24 +108,26 @@ def run(args) -> int:
         raise DataError("no such file or folder", args.sequence)
     config = apply_overrides(RunConfig(), args.overrides)
     if args.no_offset:
-        config = apply_overrides(config, {"offset_method": NO_OFFSET})
+        config = apply_overrides(config, {"offset.method": NO_OFFSET})
     offsets = read_offset_json(args.offsets) if args.offsets is not None else None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataRepairWarning)
+        from uavcal_jax.data.imu_coverage import check_imu_covers
+        from uavcal_jax.data.read import read_sequence
         from uavcal_jax.pipeline.run import run_pipeline
         from uavcal_jax.pipeline.run_outputs import format_run_summary
         from uavcal_jax.plots import plot_run
 
-        detector = _detector(args, config)
+        read = read_sequence(args.sequence)  # once: the detector and the run share it
+        check_imu_covers(read[0])  # before the detector is loaded (the run checks it too)
+        detector = _detector(args, config, read[0])
         result = run_pipeline(
-            args.sequence, args.out, config, offsets=offsets, detector=detector,
+            args.sequence, args.out, config, read=read, offsets=offsets, detector=detector,
             progress=not args.json,
             inputs={"offsets_file": None if args.offsets is None else str(args.offsets),
                     "detector_option": args.detector, "overrides": list(args.overrides)})
         figures = plot_run(result)
     if not args.json:
-        # the recording is read more than once (the offset estimator reads it too): each
-        # repair is said once
         for message in dict.fromkeys(str(w.message) for w in caught):
             print(f"warning: {message}", file=sys.stderr)
         for note in result.notes:
@@ -132,4 +137,3 @@ def run(args) -> int:
         return 0
     print(format_run_summary(result.metrics, result.out_dir, figures))
     return 0
-

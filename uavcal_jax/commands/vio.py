@@ -105,6 +105,7 @@ def _recorded_inputs(path: Path) -> dict:
 
 
 def run(args) -> int:
+    from uavcal_jax.data.imu_coverage import check_imu_covers
     from uavcal_jax.vio.run import run_vio
 
     if not args.sequence.exists():
@@ -114,6 +115,7 @@ def run(args) -> int:
         warnings.simplefilter("always", DataRepairWarning)
         sequence, _ = read_sequence(args.sequence, imu_topic=inputs["imu_topic"],
                                     image_topics=inputs["image_topics"])
+        check_imu_covers(sequence, inputs["left"], max_frames=inputs["max_frames"])
         result = run_vio(sequence, config, imu_offset=inputs["imu_offset"],
                          show_progress=not args.json, max_frames=inputs["max_frames"],
                          left=inputs["left"], right=inputs["right"])

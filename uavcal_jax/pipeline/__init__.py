@@ -8,9 +8,9 @@ Modules, one job each:
 * :mod:`~uavcal_jax.pipeline.offset_estimate`: :class:`OffsetEstimate` (what every IMU offset
   estimator returns) and :class:`OffsetMethod` (one estimator, as the registry holds it).
 * :mod:`~uavcal_jax.pipeline.offset_estimators`: the registry of estimators by name
-  (:data:`METHODS`, :func:`register_method`, :func:`get_method`, :func:`configure_method`).
+  (:data:`METHODS`, :func:`get_method`, :func:`configure_method`).
 * :mod:`~uavcal_jax.pipeline.vio_bias`: ``vio-bias``, the median of the stereo VIO's bias
-  states over the end of the flight.
+  states over the end of the flight (read from ``uavcal run``'s own VIO pass by default).
 * :mod:`~uavcal_jax.pipeline.visual_ls`: ``visual-ls``, VINS-Mono's gyro-bias least squares
   against the front end's visual rotations.
 * :mod:`~uavcal_jax.pipeline.motion_inputs`: the calibrator's visual rotations (the
@@ -19,8 +19,8 @@ Modules, one job each:
   known (issue 20's tables).
 * :mod:`~uavcal_jax.pipeline.transformer_offset`: ``transformer``, the trained calibrator of
   Avola et al. (``uavcal_jax.calib``).
-* :mod:`~uavcal_jax.pipeline.predict_offset`: a recording's offset by any method, scored
-  against the truth afterwards (``uavcal calib predict``).
+* :mod:`~uavcal_jax.pipeline.predict_offset`: a recording's offset by any method, and the one
+  function that scores an estimate against the truth (its callers hold the truth).
 * :mod:`~uavcal_jax.pipeline.run`: ``uavcal run``: offset, VIO + detector, target, set-points.
 * :mod:`~uavcal_jax.pipeline.run_config`: ``RunConfig``, the run's settings (``--set``).
 * :mod:`~uavcal_jax.pipeline.detectors`: ``Detector``; the trained and the label-box ones.
@@ -39,5 +39,6 @@ Modules, one job each:
   distance travelled.
 
 No estimator sees the ground truth: :func:`~uavcal_jax.pipeline.predict_offset.predict_offset`
-hands it the recording without one, and scores the estimate only once it is made.
+hands it the recording (read once, by the caller) without one; the caller scores the estimate
+(:func:`~uavcal_jax.pipeline.predict_offset.score`) only once it is made.
 """

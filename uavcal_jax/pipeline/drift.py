@@ -42,7 +42,7 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.geometry import so3
 from uavcal_jax.imu.dead_reckoning import dead_reckon
 from uavcal_jax.pipeline.drift_metrics import DEFAULT_ALIGN_M, drift_curve
-from uavcal_jax.pipeline.predict_offset import predict_offset
+from uavcal_jax.pipeline.predict_offset import predict_offset, score
 from uavcal_jax.sim.cache import cached_simulation, trajectory_span
 from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.flight_file import write_flight
@@ -132,20 +132,22 @@ def corrections(recording: str | Path, methods, *, progress: bool = False) -> di
 
     Returns:
         per name: ``offset`` (6,) the value subtracted, ``seconds`` to estimate it and, for
-        the methods, ``summary`` (``predict_offset``'s, JSON-ready).
+        the methods, ``summary`` (``predict_offset``'s, JSON-ready, with ``score``'s figures).
 
     Raises:
         DataError: the recording has no ground truth with bias columns (no true offset).
     """
     sequence, _ = read_sequence(recording)
-    truth = true_offset("total", recorded_imu_offset(recording), sequence.ground_truth)
+    recorded = recorded_imu_offset(recording)
+    truth = true_offset("total", recorded, sequence.ground_truth)
     if truth is None:
         raise DataError("the drift study needs the ground truth's IMU bias columns",
                         recording)
     out: dict[str, dict] = {RAW: {"offset": np.zeros(6), "seconds": 0.0}}
     for method in methods:
         t = time.perf_counter()
-        summary, estimate = predict_offset(recording, method, progress=progress)
+        summary, estimate = predict_offset(sequence, method, progress=progress)
+        summary.update(score(estimate, recorded, sequence.ground_truth))
         out[method] = {"offset": np.asarray(estimate.offset, np.float64),
                        "seconds": time.perf_counter() - t, "summary": summary}
     out[TRUE] = {"offset": truth, "seconds": 0.0}

@@ -42,7 +42,8 @@ class OffsetEstimate:
             start, a frame's time).
         item: what an item is: ``"window"`` or ``"frame"``.
         span_ns: ``(t0, t1)`` the recording's time span the estimate covers, int ns (the
-            span a ``total`` label averages the sensor's own bias over).
+            span a ``total`` label averages the sensor's own bias over); ``(None, None)``:
+            the whole recording (an offset given, not estimated).
         label: what the estimate is of (:data:`uavcal_jax.data.true_offset.LABELS`):
             ``"total"`` (the whole constant error: an offset plus the sensor's own bias) or
             ``"injected"`` (an offset alone, what a calibrator trained on that label predicts).

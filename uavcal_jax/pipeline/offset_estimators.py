@@ -4,10 +4,10 @@ Each entry is an :class:`~uavcal_jax.pipeline.offset_estimate.OffsetMethod`: a `
 that builds the method's options from ``--set``-style overrides (and the keyword arguments it
 declares), and an ``estimate(sequence, options, *, progress)`` of a recording *without ground
 truth* returning an :class:`~uavcal_jax.pipeline.offset_estimate.OffsetEstimate`. The
-built-in ones are :data:`DEFAULT_METHOD` (``vio-bias``, the most accurate measured) and
-``transformer``; other code adds its own with :func:`register_method` (a method living in a
-task package is wrapped in a small module here, beside these, and registered in
-:data:`METHODS` below, so that ``--help`` lists it).
+built-in ones are :data:`DEFAULT_METHOD` (``vio-bias``, the most accurate measured),
+``visual-ls``, ``self-calib`` and ``transformer``; a new method is a small module here, beside
+these, listed in :data:`METHODS` below (so that ``--help`` lists it) and given its options'
+subtree in :class:`~uavcal_jax.pipeline.run_config.OffsetStageConfig`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from uavcal_jax.pipeline import self_calib, transformer_offset, vio_bias, visual
 from uavcal_jax.pipeline.offset_estimate import OffsetEstimate, OffsetMethod
 
 __all__ = ["DEFAULT_METHOD", "METHODS", "configure_method", "get_method", "method_names",
-           "register_method", "run_method"]
+           "run_method"]
 
 #: The methods by name, in ``--help`` order.
 METHODS: dict[str, OffsetMethod] = {
@@ -28,18 +28,6 @@ METHODS: dict[str, OffsetMethod] = {
                         transformer_offset.METHOD)}
 #: The method used when none is named: measured the most accurate (the report of issue 20).
 DEFAULT_METHOD = vio_bias.METHOD.name
-
-
-def register_method(method: OffsetMethod, *, replace: bool = False) -> OffsetMethod:
-    """Add ``method`` to :data:`METHODS` (``replace``: over one of the same name). Returns it.
-
-    Raises:
-        ValueError: the name is taken and ``replace`` is false.
-    """
-    if method.name in METHODS and not replace:
-        raise ValueError(f"an offset method named {method.name!r} is already registered")
-    METHODS[method.name] = method
-    return method
 
 
 def method_names() -> tuple[str, ...]:

@@ -2,13 +2,14 @@
 "unseen flights" and "real IMU" checks.
 
 :func:`score_recordings` runs each named method (:mod:`uavcal_jax.pipeline.offset_estimators`)
-on each recording through :func:`~uavcal_jax.pipeline.predict_offset.predict_offset` (which
-hides the ground truth from the method and scores it afterwards) and keeps one row per
-recording and method. :func:`pooled_scores` pools the rows of each method over the recordings:
-the RMS error of every channel it estimates, per sensor (gyro rad/s, accel m/s^2 pooled over
-their axes, :func:`uavcal_jax.calib.metrics.sensor_rmse`) and the sign F1 of Avola et al.
-(eq. 19-21, :func:`uavcal_jax.calib.metrics.calibration_metrics`), beside the same figures of
-*no correction* (the estimate 0: its error is the truth itself).
+on each recording (read once) through
+:func:`~uavcal_jax.pipeline.predict_offset.predict_offset` (which hides the ground truth from
+the method), scores it afterwards (:func:`~uavcal_jax.pipeline.predict_offset.score`) and
+keeps one row per recording and method. :func:`pooled_scores` pools the rows of each method
+over the recordings: the RMS error of every channel it estimates, per sensor (gyro rad/s,
+accel m/s^2 pooled over their axes, :func:`uavcal_jax.calib.metrics.sensor_rmse`) and the
+sign F1 of Avola et al. (eq. 19-21, :func:`uavcal_jax.calib.metrics.calibration_metrics`),
+beside the same figures of *no correction* (the estimate 0: its error is the truth itself).
 """
 
 from __future__ import annotations
@@ -21,8 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax.calib.metrics import SENSORS, calibration_metrics, sensor_rmse
+from uavcal_jax.data.read import read_sequence
+from uavcal_jax.data.sim_config import recorded_imu_offset
 from uavcal_jax.pipeline.offset_estimate import SIX_CHANNELS
-from uavcal_jax.pipeline.predict_offset import predict_offset
+from uavcal_jax.pipeline.predict_offset import known_offset, predict_offset, score
 
 __all__ = ["NO_CORRECTION", "pooled_scores", "score_recordings"]
 
@@ -51,10 +54,13 @@ def score_recordings(recordings: Iterable[str | Path], methods: Iterable[str], *
     rows = []
     methods = list(methods)
     for recording in recordings:
+        sequence, _ = read_sequence(recording)
+        injected = known_offset(recorded_imu_offset(recording), inject)
         for method in methods:
             t0 = time.perf_counter()
-            summary, _ = predict_offset(recording, method, (options or {}).get(method),
-                                        inject=inject, progress=progress)
+            summary, estimate = predict_offset(sequence, method, (options or {}).get(method),
+                                               inject=inject, progress=progress)
+            summary.update(score(estimate, injected, sequence.ground_truth))
             rows.append({"recording": str(recording), "method": method,
                          "channels": summary["channels"], "offset": summary["offset"],
                          "true": summary["true"], "error": summary["error"],

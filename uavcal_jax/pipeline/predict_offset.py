@@ -1,35 +1,36 @@
-"""A recording's IMU offset by any registered method, scored against the truth afterwards
-(``uavcal calib predict``).
+"""A recording's IMU offset by any registered method (``uavcal calib predict``, ``uavcal
+run``), and the one function that scores an estimate against the truth.
 
-:func:`predict_offset` reads the recording, takes its ground truth away, adds ``inject`` (a
+:func:`predict_offset` takes a recording already read (a
+:class:`~uavcal_jax.data.sequence.Sequence`), takes its ground truth away, adds ``inject`` (a
 known miscalibration to try a method on) to its IMU, and hands that to the method
 (:func:`~uavcal_jax.pipeline.offset_estimators.run_method`): no estimator sees the ground
-truth or the simulator's record. Only then is the estimate scored (:func:`score`) against the
+truth or the simulator's record, and none is given a path to read the recording again (the
+sequence's ``root`` only names where a method may cache what it computed from the frames).
+The caller, which holds the truth, scores the estimate afterwards (:func:`score`) against the
 true offset under the estimate's label (:func:`uavcal_jax.data.true_offset.true_offset`):
-the offsets known to be in the IMU (``sim_config.json``'s, written by ``uavcal simulate
---imu-offset``, plus ``inject``) and, for the ``total`` label, the ground truth's mean bias
-over the span the estimate covers.
+the offsets known to be in the IMU (:func:`known_offset`: ``sim_config.json``'s, written by
+``uavcal simulate --imu-offset``, plus ``inject``) and, for the ``total`` label, the ground
+truth's mean bias over the span the estimate covers.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 
-from uavcal_jax.data.read import read_sequence
+from uavcal_jax.data.imu_coverage import check_imu_covers
 from uavcal_jax.data.sequence import GroundTruth, Sequence
-from uavcal_jax.data.sim_config import recorded_imu_offset
 from uavcal_jax.data.true_offset import true_offset
 from uavcal_jax.errors import DataError
 from uavcal_jax.imu.offset import add_offset
 from uavcal_jax.pipeline.offset_estimate import OffsetEstimate
 from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD, configure_method, run_method
 
-__all__ = ["predict_offset", "score", "with_imu_offset", "without_ground_truth"]
+__all__ = ["known_offset", "predict_offset", "score", "with_imu_offset", "without_ground_truth"]
 
 
 def without_ground_truth(sequence: Sequence) -> Sequence:
@@ -59,37 +60,58 @@ def with_imu_offset(sequence: Sequence, offset) -> Sequence:
     return dataclasses.replace(sequence, imu=dataclasses.replace(imu, gyro=gyro, accel=accel))
 
 
-def score(estimate: OffsetEstimate, injected, ground_truth: GroundTruth | None) -> dict:
-    """The estimate against the truth under its label.
+def score(estimate: OffsetEstimate, injected, ground_truth: GroundTruth | None, *,
+          all_channels: bool = False) -> dict:
+    """The estimate against the truth under its label: the one place an offset is scored.
 
     Args:
         estimate: an estimator's output.
         injected: ``(6,)`` the offsets known to be in the IMU (the simulator's and an
-            injected one), or ``None`` for none known.
+            injected one, :func:`known_offset`), or ``None`` for none known.
         ground_truth: the recording's, for the ``total`` label's sensor bias (its mean over
             ``estimate.span_ns``), or ``None``.
+        all_channels: score ``estimate.offset`` over all six channels (0 where the method
+            estimates nothing: what an IMU corrected by it keeps), not ``estimate.median``
+            in its channels.
 
     Returns:
-        JSON-ready ``true`` (in the estimate's channels), ``error`` (the median minus it) and
-        ``rmse`` over the channels; all ``None`` when the truth is unknown.
+        JSON-ready ``true`` (in the estimate's channels, or all six), ``error`` (the estimate
+        minus it) and ``rmse`` over those channels; all ``None`` when the truth is unknown.
     """
     truth = true_offset(estimate.label, injected, ground_truth, *estimate.span_ns)
     if truth is None:
         return {"true": None, "error": None, "rmse": None}
-    true = truth[estimate.channel_index]
-    error = np.asarray(estimate.median, np.float64) - true
+    if all_channels:
+        true, value = truth, np.asarray(estimate.offset, np.float64)
+    else:
+        true = truth[estimate.channel_index]
+        value = np.asarray(estimate.median, np.float64)
+    error = value - true
     return {"true": true.tolist(), "error": error.tolist(),
             "rmse": float(np.sqrt(np.mean(np.square(error))))}
 
 
-def predict_offset(recording: str | Path, method: str = DEFAULT_METHOD, options: Any = None,
+def known_offset(recorded, inject) -> np.ndarray | None:
+    """``(6,)`` the offsets known to be in an IMU: the simulator's ``recorded`` one
+    (:func:`uavcal_jax.data.sim_config.recorded_imu_offset`) plus an ``inject``-ed one, either
+    ``None``; ``None`` when neither is known (:func:`score`'s ``injected``)."""
+    if recorded is None and inject is None:
+        return None
+    return (np.zeros(6) if recorded is None else np.asarray(recorded, np.float64)) + (
+        np.zeros(6) if inject is None else np.asarray(inject, np.float64))
+
+
+def predict_offset(sequence: Sequence, method: str = DEFAULT_METHOD, options: Any = None,
                    *, inject=None, progress: bool = False) -> tuple[dict, OffsetEstimate]:
     """``(summary, estimate)``: method ``method``'s estimate of the IMU offset of
-    ``recording`` (an EuRoC/ASL folder or a ROS bag, :func:`uavcal_jax.data.read.read_sequence`),
-    scored against the truth when it is known.
+    ``sequence`` (read once by the caller, :func:`uavcal_jax.data.read.read_sequence`), given
+    to the method without its ground truth (:func:`without_ground_truth`) and with ``inject``
+    added to its IMU. Nothing is scored here: the caller, which holds the truth sources,
+    adds :func:`score`'s figures (``summary.update(score(estimate, known_offset(recorded,
+    inject), sequence.ground_truth))``).
 
     Args:
-        recording: the recording's path.
+        sequence: the recording.
         method: a registered method (:data:`~uavcal_jax.pipeline.offset_estimators.METHODS`).
         options: its options (:func:`~uavcal_jax.pipeline.offset_estimators.configure_method`;
             ``None``: its defaults).
@@ -97,32 +119,29 @@ def predict_offset(recording: str | Path, method: str = DEFAULT_METHOD, options:
         progress: progress bars on stderr for long work (the VIO).
 
     Returns:
-        ``summary`` (JSON-ready): ``method``, ``label``, ``sequence``, ``channels``,
-        ``item`` (``window`` or ``frame``) and ``items``, the method's ``info``, ``offset``
-        (the median, in ``channels``), ``per_window`` (each item's estimate; a VIO frame's for
-        ``vio-bias``) with ``per_window_std`` and ``window_start_s`` (the items' times,
-        seconds since the first frame), ``span_ns`` (the recording's span the estimate
-        covers, ``OffsetEstimate.span_ns``), ``injected``, ``recorded`` (the simulator's
-        offset), and ``true``, ``error``, ``rmse`` (:func:`score`; ``None`` when the truth
-        is unknown).
+        ``summary`` (JSON-ready): ``method``, ``label``, ``sequence`` (the recording's
+        folder, else its name), ``channels``, ``item`` (``window`` or ``frame``) and
+        ``items``, the method's ``info``, ``offset`` (the median, in ``channels``),
+        ``per_window`` (each item's estimate; a VIO frame's for ``vio-bias``) with
+        ``per_window_std`` and ``window_start_s`` (the items' times, seconds since the first
+        frame), ``span_ns`` (the recording's span the estimate covers,
+        ``OffsetEstimate.span_ns``) and ``injected``.
 
     Raises:
-        DataError: unreadable recording, unknown method, the method's own refusals.
+        DataError: unknown method, an IMU that does not cover the left camera's frames
+            (:func:`~uavcal_jax.data.imu_coverage.check_imu_covers`), the method's own
+            refusals.
     """
     if options is None:
         options = configure_method(method)
-    sequence, _ = read_sequence(recording)
+    if "cam0" in sequence.cameras:  # the frames an estimator integrates the IMU between
+        check_imu_covers(sequence)
     blind = with_imu_offset(without_ground_truth(sequence), inject)
     estimate = run_method(method, blind, options, progress=progress)
-    # the truth, only now: the simulator's record and the ground truth
-    recorded = recorded_imu_offset(recording)
-    injected = None
-    if recorded is not None or inject is not None:
-        injected = (np.zeros(6) if recorded is None else recorded) + (
-            np.zeros(6) if inject is None else np.asarray(inject, np.float64))
     per_item = np.asarray(estimate.per_item, np.float64)
     summary = {
-        "method": method, "label": estimate.label, "sequence": str(recording),
+        "method": method, "label": estimate.label,
+        "sequence": str(sequence.root if sequence.root is not None else sequence.name),
         "channels": list(estimate.channels), "item": estimate.item, "items": len(per_item),
         **estimate.info,
         "offset": np.asarray(estimate.median, np.float64).tolist(),
@@ -131,7 +150,5 @@ def predict_offset(recording: str | Path, method: str = DEFAULT_METHOD, options:
         "window_start_s": np.asarray(estimate.item_t_s, np.float64).tolist(),
         "span_ns": [int(t) for t in estimate.span_ns],
         "injected": None if inject is None else np.asarray(inject, np.float64).tolist(),
-        "recorded": None if recorded is None else recorded.tolist(),
-        **score(estimate, injected, sequence.ground_truth),
     }
     return summary, estimate

@@ -1,12 +1,18 @@
 """``uavcal run``: calibrate the IMU, fly on the VIO, find, locate, filter and follow the target,
 over one recording (:func:`run_pipeline`).
 
-Steps (RPEOD section 6.3 on a calibrated IMU):
+Steps (RPEOD section 6.3 on a calibrated IMU), over the recording read once:
 
-1. the IMU offset: the default estimator of ``uavcal calib predict``
-   (:func:`~uavcal_jax.pipeline.predict_offset.predict_offset`, which never reads the ground
-   truth), or a given offset, or none (``RunConfig.offset_method = "none"``);
-2. the stereo VIO (:func:`uavcal_jax.vio.run.run_vio`) on the IMU minus that offset,
+1. the IMU covers the frames (:func:`~uavcal_jax.data.imu_coverage.check_imu_covers`, before
+   any work); the IMU offset to remove first: ``offset.method``'s estimate
+   (:func:`~uavcal_jax.pipeline.predict_offset.predict_offset`, which never shows the method
+   the ground truth), or a given offset, or none (``offset.method=none``); the default
+   method, :data:`IN_PASS_METHOD`, removes none and is read from step 2's own VIO (2b), so
+   that the default run makes one VIO pass;
+2. the stereo VIO (:func:`uavcal_jax.vio.run.run_vio`) on the IMU minus that offset; (2b) the
+   default offset estimate from its bias states (:func:`uavcal_jax.pipeline.vio_bias.from_vio`,
+   in a worker thread beside steps 4-5), reported, not removed: the VIO has estimated the
+   biases itself;
 3. *concurrently* with the detector on every ``detect.every``-th left frame, in a worker
    thread (as the VIO pipelines its own front end; XLA and OpenCV release the GIL);
 4. the target and the follow set-points: the online tracker over the frames
@@ -23,20 +29,21 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from uavcal_jax.data.imu_coverage import check_imu_covers
 from uavcal_jax.data.read import read_sequence
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.data.sim_config import recorded_imu_offset
-from uavcal_jax.data.true_offset import true_offset
 from uavcal_jax.detect.predict import ImageDetections
 from uavcal_jax.errors import DataError
+from uavcal_jax.pipeline import vio_bias
 from uavcal_jax.pipeline.detectors import Detector, load_network_detector
-from uavcal_jax.pipeline.offset_estimators import configure_method, get_method
-from uavcal_jax.pipeline.predict_offset import predict_offset
+from uavcal_jax.pipeline.offset_estimate import SIX_CHANNELS, OffsetEstimate
+from uavcal_jax.pipeline.predict_offset import predict_offset, score, without_ground_truth
 from uavcal_jax.pipeline.run_config import NO_OFFSET, RunConfig
 from uavcal_jax.pipeline.run_metrics import Evaluation, evaluate, follow_metrics, stage_timings
 from uavcal_jax.pipeline.run_outputs import build_metrics, write_outputs
@@ -45,7 +52,7 @@ from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.track import Setpoint
 from uavcal_jax.vio.run import VioResult, run_vio
 
-__all__ = ["DetectionBoard", "RunResult", "run_pipeline"]
+__all__ = ["IN_PASS_METHOD", "DetectionBoard", "RunResult", "run_pipeline"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,27 +85,70 @@ class RunResult:
     notes: list[str]
 
 
-def _offset(recording: Path, sequence: Sequence, config: RunConfig, offsets, offsets_from: str,
-            progress: bool) -> dict:
-    """Step 1: ``{"estimate", "true", "method", "label", "seconds"}``."""
+#: The offset method read from the run's own VIO pass: the VIO runs on the recorded IMU and
+#: its bias states are the estimate (:func:`uavcal_jax.pipeline.vio_bias.from_vio`), so the
+#: default run is one VIO pass. The VIO estimates the biases itself: on the drift study's
+#: flights removing the estimate first changed its final error by at most 4 %.
+IN_PASS_METHOD = vio_bias.METHOD.name
+
+
+def _given(offset) -> OffsetEstimate:
+    """An offset given rather than estimated (``--offsets``, or none), over the recording's
+    whole span, for :func:`~uavcal_jax.pipeline.predict_offset.score`."""
+    offset = np.asarray(offset, np.float64).reshape(6)
+    return OffsetEstimate(offset=offset, channels=SIX_CHANNELS, median=offset,
+                          per_item=offset[None], item_t_s=np.zeros(1), item="given",
+                          span_ns=(None, None), label="total", settings=None)
+
+
+def _offset_before_vio(sequence: Sequence, config: RunConfig, offsets, offsets_from: str,
+                       progress: bool) -> dict | None:
+    """Step 1 where the offset is removed before the VIO: ``{"estimate": OffsetEstimate,
+    "method", "removed": True, "seconds"}``; ``None`` for :data:`IN_PASS_METHOD` (step 2b)."""
     t0 = time.perf_counter()
-    recorded = recorded_imu_offset(recording) if recording.is_dir() else None
-    label, span = "total", (None, None)
+    method = config.offset.method
     if offsets is not None:
-        estimate, method = np.asarray(offsets, np.float64).reshape(6), offsets_from
-    elif config.offset_method == NO_OFFSET:
-        estimate, method = np.zeros(6), NO_OFFSET
+        estimate, method = _given(offsets), offsets_from
+    elif method == NO_OFFSET:
+        estimate = _given(np.zeros(6))
+    elif method == IN_PASS_METHOD:
+        return None
     else:
-        method = config.offset_method
-        options = configure_method(method)
-        if dataclasses.is_dataclass(options) and any(
-                f.name == "vio" for f in dataclasses.fields(options)):
-            options = dataclasses.replace(options, vio=config.vio)  # one VIO setting throughout
-        _, est = predict_offset(recording, method, options, progress=progress)
-        estimate, label, span = np.asarray(est.offset, np.float64), est.label, est.span_ns
-    truth = true_offset(label, recorded, sequence.ground_truth, *span)
-    return {"estimate": estimate, "true": truth, "method": method, "label": label,
+        _, estimate = predict_offset(sequence, method, config.offset.options(config.vio),
+                                     progress=progress)
+    return {"estimate": estimate, "method": method, "removed": True,
             "seconds": time.perf_counter() - t0}
+
+
+def _offset_from_vio(sequence: Sequence, vio: VioResult, config: RunConfig) -> dict:
+    """Step 2b: the :data:`IN_PASS_METHOD` estimate read from the run's VIO (on the recorded
+    IMU), reported, not removed."""
+    t0 = time.perf_counter()
+    estimate = vio_bias.from_vio(without_ground_truth(sequence), vio,
+                                 config.offset.options(vio.config))
+    return {"estimate": estimate, "method": IN_PASS_METHOD, "removed": False,
+            "seconds": time.perf_counter() - t0}
+
+
+def _in_thread(function, *args) -> Future:
+    """``function(*args)`` started in a worker thread of its own (its result or exception
+    comes back through the future)."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="offset")
+    future = pool.submit(function, *args)
+    pool.shutdown(wait=False)  # the thread ends with the job
+    return future
+
+
+def _scored(offset: dict, recording: Path, sequence: Sequence) -> dict:
+    """``metrics.json``'s offset: ``estimate`` (6,), ``true`` (6,) or ``None`` (the truth
+    under the estimate's label, :func:`~uavcal_jax.pipeline.predict_offset.score`),
+    ``method``, ``label``, ``removed``, ``seconds``."""
+    estimate = offset["estimate"]
+    recorded = recorded_imu_offset(recording) if recording.is_dir() else None
+    true = score(estimate, recorded, sequence.ground_truth, all_channels=True)["true"]
+    return {**offset, "estimate": np.asarray(estimate.offset, np.float64),
+            "true": None if true is None else np.asarray(true, np.float64),
+            "label": estimate.label}
 
 
 class DetectionBoard:
@@ -194,8 +244,29 @@ def _poses(vio: VioResult) -> list[np.ndarray | None]:
     return out
 
 
+def _checked(recording: Path, read: tuple[Sequence, str] | None) -> tuple[Sequence, str]:
+    """``(sequence, format)`` of ``recording`` (or the caller's ``read`` of it), with left
+    camera frames and an IMU that covers them, before any work."""
+    sequence, fmt = read_sequence(recording) if read is None else read
+    if "cam0" not in sequence.cameras or len(sequence.camera("cam0")) == 0:
+        raise DataError("the recording has no left camera frames (cam0)", recording)
+    check_imu_covers(sequence)
+    return sequence, fmt
+
+
+def _checked_detector(detector: Detector | None, config: RunConfig) -> Detector:
+    """``detector`` (``None``: the shipped weights), which knows the class to follow."""
+    if detector is None:
+        detector = load_network_detector(None, config.detect.detector_threshold())
+    if config.detect.follow_class not in detector.class_names:
+        raise DataError(f"detect.follow_class={config.detect.follow_class!r} is not a class "
+                        f"of the detector (its classes: {', '.join(detector.class_names)})")
+    return detector
+
+
 def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig | None = None,
-                 *, offsets=None, offsets_from: str = "given", detector: Detector | None = None,
+                 *, read: tuple[Sequence, str] | None = None, offsets=None,
+                 offsets_from: str = "given", detector: Detector | None = None,
                  progress: bool = True, inputs: dict | None = None) -> RunResult:
     """Run the whole pipeline over ``recording`` and write its files into ``out_dir``.
 
@@ -204,6 +275,9 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
             stereo pair (the VIO's needs).
         out_dir: the output folder (created).
         config: :class:`~uavcal_jax.pipeline.run_config.RunConfig` (``None``: defaults).
+        read: ``(sequence, format)``, :func:`~uavcal_jax.data.read.read_sequence` of
+            ``recording`` when the caller has read it (the recording is read once); ``None``:
+            read here.
         offsets: (6,) an IMU offset to remove instead of estimating one, or ``None``.
         offsets_from: what ``offsets`` is, for ``metrics.json``'s ``offset.method`` (e.g.
             the name of the estimator that made it).
@@ -213,32 +287,29 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
         inputs: extra entries for ``config.json``'s ``inputs`` (the command line).
 
     Raises:
-        DataError: not a recording, no shipped weights (with ``detector=None``), a class to
-            follow the detector does not know, a VIO that never initialises, ...
+        DataError: not a recording, an IMU that does not cover the frames (before any work,
+            :func:`~uavcal_jax.data.imu_coverage.check_imu_covers`), no shipped weights
+            (with ``detector=None``), a class to follow the detector does not know, a VIO
+            that never initialises, ...
     """
     t_start = time.perf_counter()
     config = RunConfig() if config is None else config
     recording, out_dir = Path(recording), Path(out_dir)
-    sequence, fmt = read_sequence(recording)
-    if "cam0" not in sequence.cameras or len(sequence.camera("cam0")) == 0:
-        raise DataError("the recording has no left camera frames (cam0)", recording)
-    if detector is None:
-        detector = load_network_detector(None, config.detect.detector_threshold())
-    if config.detect.follow_class not in detector.class_names:
-        raise DataError(f"detect.follow_class={config.detect.follow_class!r} is not a class "
-                        f"of the detector (its classes: {', '.join(detector.class_names)})")
-    if offsets is None and config.offset_method != NO_OFFSET:
-        get_method(config.offset_method)  # an unknown name fails before any work
+    sequence, fmt = _checked(recording, read)
+    detector = _checked_detector(detector, config)
     localizer = build_localizer(sequence, config)
-    offset = _offset(recording, sequence, config, offsets, offsets_from, progress)
+    offset = _offset_before_vio(sequence, config, offsets, offsets_from, progress)
     t0 = time.perf_counter()
     vio, detections, detect_ms, detected_frames = _vio_and_detect(
-        sequence, config, offset["estimate"], detector, progress)
+        sequence, config, None if offset is None else offset["estimate"].offset, detector,
+        progress)
     vio_detect_s = time.perf_counter() - t0
     trajectory = vio.trajectory()
     if len(trajectory) == 0:
         raise DataError(f"the VIO never initialised (no frame had "
                         f"{vio.config.min_init_landmarks} stereo corners)", recording)
+    # 2b beside steps 4-5 (the alignment's solve and compilation on the other core)
+    pending = None if offset is not None else _in_thread(_offset_from_vio, sequence, vio, config)
     config = dataclasses.replace(config, vio=vio.config)
     poses = _poses(vio)
     t0 = time.perf_counter()
@@ -247,6 +318,7 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
     times_s = (cam0.t_ns - cam0.t_ns[0]).astype(np.float64) * 1e-9
     setpoints = target.setpoints
     track_s = time.perf_counter() - t0
+    offset = _scored(offset if pending is None else pending.result(), recording, sequence)
     evaluation = evaluate(sequence, trajectory, target, setpoints.position)
     ms, compile_s = stage_timings([f.timings for f in vio.frames], detect_ms, target,
                                   len(cam0), config.detect.every, config.warmup_frames)

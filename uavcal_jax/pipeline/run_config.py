@@ -4,17 +4,21 @@ dataclass tree, :class:`RunConfig`, over the stages' own configs.
 Every stage keeps its own config class and defaults (the VIO's
 :class:`~uavcal_jax.vio.config.VioConfig`, the tracker's ``LocateConfig``, ``FilterConfig``,
 ``FollowConfig``, ``AssociateConfig``, the stereo matcher's ``StereoConfig``); this tree only
-gathers them, adds the detection stage's (:class:`DetectStageConfig`) and the choice of the
-IMU offset estimator, so that ``--set key=value`` reaches any of them
-(:func:`uavcal_jax.config.apply_overrides`: ``vio.solver.max_iterations=4``,
-``detect.every=2``, ``follow.distance=5``, ``filter.accel_psd=2``, ...).
+gathers them, adds the detection stage's (:class:`DetectStageConfig`) and the IMU offset
+stage's (:class:`OffsetStageConfig`: the estimator and every estimator's options), so that
+``--set key=value`` reaches any of them (:func:`uavcal_jax.config.apply_overrides`:
+``vio.solver.max_iterations=4``, ``detect.every=2``, ``offset.method=visual-ls``,
+``offset.visual_ls.every=2``, ``follow.distance=5``, ``filter.accel_psd=2``, ...).
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD
+from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD, configure_method, method_names
+from uavcal_jax.pipeline.self_calib import SelfCalibOptions
+from uavcal_jax.pipeline.transformer_offset import TransformerSettings
+from uavcal_jax.pipeline.vio_bias import VioBiasOptions
 from uavcal_jax.track.associate import AssociateConfig
 from uavcal_jax.track.filter import FilterConfig
 from uavcal_jax.track.follow import FollowConfig
@@ -22,11 +26,12 @@ from uavcal_jax.track.heading import HeadingConfig
 from uavcal_jax.track.locate import LocateConfig
 from uavcal_jax.track.stereo import StereoConfig
 from uavcal_jax.vio.config import VioConfig
+from uavcal_jax.vio.visual_gyro import VisualGyroConfig
 
 __all__ = ["CLASS_HALF_SIZE_M", "NO_OFFSET", "RUN_FILTER", "RUN_HEADING", "RUN_LOCATE",
-           "DetectStageConfig", "RunConfig"]
+           "DetectStageConfig", "OffsetStageConfig", "RunConfig"]
 
-#: ``RunConfig.offset_method`` that removes no offset from the IMU.
+#: ``RunConfig.offset.method`` that removes no offset from the IMU.
 NO_OFFSET = "none"
 
 #: Half sizes, metres (along the heading, across, up), of the upright box that models a target
@@ -162,16 +167,64 @@ class DetectStageConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class OffsetStageConfig:
+    """The IMU offset stage of the run: which estimator, and each estimator's options (those
+    of ``uavcal calib predict --method NAME --set ...``, here under ``offset.<name>.*``, the
+    name's ``-`` written ``_``).
+
+    The VIO's settings are the run's one ``vio`` (the run's own VIO pass and a method's VIO
+    alike): a method's own ``vio`` subtree is not set here (refused).
+
+    Attributes:
+        method: a name of :data:`~uavcal_jax.pipeline.offset_estimators.METHODS` (default the
+            registry's default, ``vio-bias``, read from the run's own VIO pass) or ``"none"``
+            to remove nothing.
+        vio_bias: :class:`~uavcal_jax.pipeline.vio_bias.VioBiasOptions`.
+        visual_ls: :class:`~uavcal_jax.vio.visual_gyro.VisualGyroConfig`.
+        self_calib: :class:`~uavcal_jax.pipeline.self_calib.SelfCalibOptions`.
+        transformer: :class:`~uavcal_jax.pipeline.transformer_offset.TransformerSettings`
+            (the calibrator's run folder, checkpoint kind, frame encoder dtype).
+    """
+
+    method: str = DEFAULT_METHOD
+    vio_bias: VioBiasOptions = VioBiasOptions()
+    visual_ls: VisualGyroConfig = VisualGyroConfig()
+    self_calib: SelfCalibOptions = SelfCalibOptions()
+    transformer: TransformerSettings = TransformerSettings()
+
+    def __post_init__(self):
+        if self.method not in (*method_names(), NO_OFFSET):
+            raise ValueError(f"offset.method must be one of {', '.join(method_names())} or "
+                             f"{NO_OFFSET}, got {self.method!r}")
+        for name in ("vio_bias", "self_calib"):
+            if getattr(self, name).vio != VioConfig():
+                raise ValueError(f"offset.{name}.vio.* is the run's vio.* (one VIO setting "
+                                 "for the run and its offset method): set vio.* instead")
+
+    def options(self, vio: VioConfig):
+        """The options of :attr:`method` (not ``"none"``) as its ``estimate`` takes them,
+        with the run's ``vio`` settings where the method runs a VIO.
+
+        Raises:
+            DataError: the transformer's run folder is not one (its ``configure``).
+        """
+        settings = getattr(self, self.method.replace("-", "_"))
+        if isinstance(settings, TransformerSettings):  # a run folder to read, at run time
+            return configure_method(self.method, **dataclasses.asdict(settings))
+        if any(f.name == "vio" for f in dataclasses.fields(settings)):
+            return dataclasses.replace(settings, vio=vio)
+        return settings
+
+
+@dataclasses.dataclass(frozen=True)
 class RunConfig:
     """Everything ``uavcal run`` computes with (``--set`` keys are the dotted fields).
 
     Attributes:
-        offset_method: the IMU offset estimator (a name of
-            :data:`~uavcal_jax.pipeline.offset_estimators.METHODS`, ``uavcal calib predict
-            --method``; default the registry's default) or ``"none"`` to remove nothing. An
-            offsets file given to the run overrides it. A method with VIO settings runs with
-            ``vio`` below.
-        vio: the VIO's settings (camera-dependent values resolved against the left camera).
+        offset: :class:`OffsetStageConfig`: the IMU offset estimator and its options. An
+            offsets file given to the run overrides it.
+        vio: the VIO's settings (camera-dependent values resolved against the left camera),
+            the run's and its offset method's.
         detect: :class:`DetectStageConfig`.
         associate: frame-to-frame association of the detections into tracks.
         locate: the box localisation from depth (or stereo disparity) (:data:`RUN_LOCATE`).
@@ -185,7 +238,7 @@ class RunConfig:
             while the first window fills; the first calls' extra time is reported apart).
     """
 
-    offset_method: str = DEFAULT_METHOD
+    offset: OffsetStageConfig = OffsetStageConfig()
     vio: VioConfig = VioConfig()
     detect: DetectStageConfig = DetectStageConfig()
     associate: AssociateConfig = AssociateConfig()

@@ -89,7 +89,8 @@ def build_metrics(*, recording, fmt, vio, offset, detections, detected_frames, c
         "offset": {"estimate": estimate.tolist(),
                    "true": None if truth is None else np.asarray(truth).tolist(),
                    "error": None if truth is None else (estimate - truth).tolist(),
-                   "method": offset["method"], "label": offset["label"]},
+                   "method": offset["method"], "label": offset["label"],
+                   "removed": offset["removed"]},
         "target_error_m": target_error,
         "follow": follow,
         "ms_per_frame": ms_per_frame,
@@ -136,7 +137,8 @@ def format_run_summary(metrics: dict, out_dir, figures: dict) -> str:
     lines = [f"{m['vio']['poses']} poses from {m['vio']['frames']} frames, "
              f"{m['vio']['resets']} resets -> {out_dir}"]
     o = m["offset"]
-    lines.append(f"IMU offset removed ({o['method']}): "
+    lines.append(f"IMU offset {'removed' if o.get('removed', True) else 'estimated'} "
+                 f"({o['method']}): "
                  + " ".join(f"{v:.4f}" for v in o["estimate"]))
     if o["true"] is not None:
         lines.append("  true: " + " ".join(f"{v:.4f}" for v in o["true"]) + "  error: "

@@ -28,7 +28,7 @@ from uavcal_jax.calib.pretrained import default_weights
 from uavcal_jax.calib.trials import TRIAL_FORMAT, trial_folders
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.errors import DataError, OutOfDomainWarning
-from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
+from uavcal_jax.pipeline.motion_inputs import sequence_rotations
 from uavcal_jax.pipeline.offset_estimate import (
     SIX_CHANNELS,
     OffsetEstimate,
@@ -36,8 +36,8 @@ from uavcal_jax.pipeline.offset_estimate import (
     check_sequence,
 )
 
-__all__ = ["METHOD", "MOUNTING_TOLERANCE_DEG", "TransformerOptions", "configure", "estimate",
-           "mounting_alignment", "run_folder"]
+__all__ = ["METHOD", "MOUNTING_TOLERANCE_DEG", "TransformerOptions", "TransformerSettings",
+           "configure", "estimate", "mounting_alignment", "run_folder"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,27 @@ class TransformerOptions:
     run_dir: Path
     kind: str
     run: CalibRunConfig
+
+
+@dataclass(frozen=True)
+class TransformerSettings:
+    """What :func:`configure` takes besides ``--set``, as a config tree holds it (``uavcal run
+    --set offset.transformer.*``): the run folder and its checkpoint are read at run time.
+
+    Attributes:
+        checkpoint: the run folder (``None``: the shipped weights, :func:`run_folder`).
+        kind: its checkpoint, ``"best"`` or ``"last"``.
+        frame_dtype: the frame encoder's operand type (``model.frame_encoder_dtype``;
+            ``None``: the run's).
+    """
+
+    checkpoint: str | None = None
+    kind: str = "best"
+    frame_dtype: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("best", "last"):
+            raise ValueError(f"kind must be 'best' or 'last', got {self.kind!r}")
 
 
 def run_folder(checkpoint: str | Path | None) -> Path:
@@ -106,7 +127,7 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
                         "bound for tables, not an estimate without ground truth",
                         options.run_dir)
     info, prediction = predict_on_sequence(options.run_dir, sequence, kind=options.kind,
-                                           run=run, rotation_source=visual_rotation_source)
+                                           run=run, rotation_source=sequence_rotations)
     angle = info.get("gravity_angle_deg")
     if angle is not None and angle > MOUNTING_TOLERANCE_DEG:
         info, prediction = _predict_remounted(sequence, options, info, prediction)
@@ -164,8 +185,8 @@ def _predict_remounted(sequence: Sequence, options: TransformerOptions, info: di
     imu = dataclasses.replace(sequence.imu, gyro=sequence.imu.gyro @ R.T,
                               accel=sequence.imu.accel @ R.T)
 
-    def turned_rotations(folder):
-        visual = visual_rotation_source(folder)
+    def turned_rotations(recording):
+        visual = sequence_rotations(recording)
         return visual._replace(R=R @ visual.R @ R.T)
 
     info, turned = predict_on_sequence(options.run_dir, dataclasses.replace(sequence, imu=imu),

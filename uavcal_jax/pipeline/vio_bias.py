@@ -12,7 +12,9 @@ trajectory with the IMU over the whole flight
 (:func:`uavcal_jax.imu.accel_alignment.align_accel_bias`): the window's bias states trade the
 bias across gravity against the tilt and stay there for many seconds (``accel="states"``
 takes their median as for the gyro). Its label is ``total``: the VIO sees the whole constant
-error, offset and the sensor's own bias alike.
+error, offset and the sensor's own bias alike. :func:`estimate` runs its own VIO;
+:func:`from_vio` reads the estimate from a VIO run already made on the recorded IMU (``uavcal
+run``'s one pass).
 
 Measured (``uavcal demo``: 12 s procedural flight, seed 9, 121 degrees of yaw), errors against
 the total: gyro 2e-4, -1e-4, -4e-4 rad/s; accelerometer (gravity along x) -0.006, -0.020,
@@ -43,14 +45,15 @@ from uavcal_jax.pipeline.offset_estimate import (
     check_sequence,
 )
 from uavcal_jax.vio.config import VioConfig
-from uavcal_jax.vio.run import run_vio
+from uavcal_jax.vio.run import VioResult, run_vio
 
 __all__ = ["ACCEL_SOURCES", "GOOD_STATUSES", "METHOD", "TAIL_FRACTION", "VioBiasOptions",
-           "configure", "estimate", "tail_median"]
+           "configure", "estimate", "from_vio", "tail_median"]
 
-#: Frame statuses (:data:`uavcal_jax.vio.estimator.STATUSES`) whose bias state counts: solved
-#: with landmarks. Not ``initialized`` (the biases are still their prior), ``coasting`` (IMU
-#: propagation: nothing observes the biases), ``reset`` (a failure check fired).
+#: Frame statuses (:class:`uavcal_jax.vio.frame_estimate.FrameEstimate`) whose bias state
+#: counts: solved with landmarks. Not ``initialized`` (the biases are still their prior),
+#: ``coasting`` (IMU propagation: nothing observes the biases), ``reset`` (a failure check
+#: fired).
 GOOD_STATUSES = ("tracking",)
 #: The share of a flight, at its end, that the VIO-based offset estimators (this one and
 #: :mod:`uavcal_jax.pipeline.self_calib`) read: the VIO's biases take a few seconds to settle.
@@ -136,7 +139,20 @@ def estimate(sequence: Sequence, options: VioBiasOptions = VioBiasOptions(), *,
             the flight's tail.
     """
     check_sequence(sequence)
-    result = run_vio(sequence, options.vio, show_progress=progress)
+    return from_vio(sequence, run_vio(sequence, options.vio, show_progress=progress), options)
+
+
+def from_vio(sequence: Sequence, result: VioResult,
+             options: VioBiasOptions = VioBiasOptions()) -> OffsetEstimate:
+    """The ``vio-bias`` estimate read from a VIO run already made over ``sequence``'s
+    recorded IMU (no offset removed): ``uavcal run``'s own VIO pass, so that the run's
+    default offset costs no second VIO. ``options.vio`` is not used (``result.config`` is
+    the VIO's setting, kept in ``settings``); ``sequence`` has no ground truth.
+
+    Raises:
+        DataError: no stereo frame, or no frame tracked in the flight's tail.
+    """
+    check_sequence(sequence)
     frames = result.frames
     if not frames:
         raise DataError("the recording has no stereo frame for the VIO", sequence.root

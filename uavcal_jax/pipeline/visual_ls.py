@@ -5,13 +5,13 @@ The front end's tracks between consecutive left frames give the camera's relativ
 (essential matrix, refined; :func:`uavcal_jax.vio.visual_rotation.relative_rotations`, cached
 beside the recording); the gyro integrated over the same interval at full rate must agree
 with it, and the constant that makes it agree best is the estimate
-(:func:`uavcal_jax.vio.visual_rotation.gyro_bias_least_squares`). The rotations never see the
+(:func:`uavcal_jax.vio.visual_gyro.gyro_bias_least_squares`). The rotations never see the
 gyro, so the estimate is the whole constant error of the gyro (label ``total``). Relative
 rotations say nothing of the accelerometer: the accel channels are not estimated (0 in
 ``offset``: nothing is subtracted there).
 
 Measured on a 40 s simulated V2_01 flight with an injected offset: within 1.1e-4 rad/s of the
-total per axis (``uavcal_jax.vio.visual_rotation``'s docstring has the figures).
+total per axis (:mod:`uavcal_jax.vio.visual_rotation` has the fits' measured reasons).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from uavcal_jax.pipeline.offset_estimate import (
     OffsetMethod,
     check_sequence,
 )
-from uavcal_jax.vio.visual_rotation import VisualGyroConfig, visual_gyro_bias
+from uavcal_jax.vio.visual_gyro import VisualGyroConfig, visual_gyro_bias
 
 __all__ = ["METHOD", "configure", "estimate"]
 
@@ -37,7 +37,7 @@ GYRO_CHANNELS = SIX_CHANNELS[:3]
 
 
 def configure(overrides: Iterable[str] = ()) -> VisualGyroConfig:
-    """:class:`~uavcal_jax.vio.visual_rotation.VisualGyroConfig` with ``key=value``
+    """:class:`~uavcal_jax.vio.visual_gyro.VisualGyroConfig` with ``key=value``
     ``overrides`` (e.g. ``every=2``, ``frontend.max_corners=200``).
 
     Raises:

@@ -1,130 +1,71 @@
-"""The camera's relative rotations from the front end's tracks, and the gyro bias they imply.
+"""The camera's relative rotations between frames from the front end's tracks: two-view
+geometry, one pair at a time and over a recording.
 
-An estimator of the gyroscope's constant error that needs no ground truth (VINS-Mono's
-``solveGyroscopeBias``, run over a whole recording instead of an initialisation window):
+:func:`relative_rotations` runs the project's KLT front end
+(:class:`~uavcal_jax.vio.frontend.FeatureTracker`, monocular on the left camera: the
+stereo stage adds nothing to the left tracks) over the recording and, for each pair of
+frames ``(k, k + every)``, fits the camera's rotation to the tracks both frames share: an
+essential matrix by RANSAC on undistorted normalised points (``cv2.findEssentialMat``,
+focal 1, the front end's threshold ``ransac_threshold_px / NOMINAL_FOCAL_PX``), of whose
+two rotations (``cv2.decomposeEssentialMat``) the one nearer a rotation-only fit is kept,
+refined with the translation direction on the inliers' Sampson distances. When the
+rotation-compensated parallax is below ``min_parallax_px`` (no translation to speak of:
+hover, a pure turn) the rotation-only fit (Kabsch on the bearing vectors) is the answer.
+The camera rotation is carried into the body (IMU) frame through the camera's extrinsic
+``T_BS``: ``R_B = R_BC R_C R_BC^T``. The tracker is never given the gyro (its flow
+prediction is off), so the visual rotations do not depend on the gyro or its bias.
 
-1. :func:`relative_rotations` runs the project's KLT front end
-   (:class:`~uavcal_jax.vio.frontend.FeatureTracker`, monocular on the left camera: the
-   stereo stage adds nothing to the left tracks) over the recording and, for each pair of
-   frames ``(k, k + every)``, fits the camera's rotation to the tracks both frames share: an
-   essential matrix by RANSAC on undistorted normalised points (``cv2.findEssentialMat``,
-   focal 1, the front end's threshold ``ransac_threshold_px / NOMINAL_FOCAL_PX``), of whose
-   two rotations (``cv2.decomposeEssentialMat``) the one nearer a rotation-only fit is kept,
-   refined with the translation direction on the inliers' Sampson distances. When the
-   rotation-compensated parallax is below ``min_parallax_px`` (no translation to speak of:
-   hover, a pure turn) the rotation-only fit (Kabsch on the bearing vectors) is the answer.
-   The camera rotation is carried into the body (IMU) frame through the camera's extrinsic
-   ``T_BS``: ``R_B = R_BC R_C R_BC^T``. The tracker is never given the gyro (its flow
-   prediction is off), so the visual rotations do not depend on the gyro or its bias.
+Why not ``cv2.recoverPose`` and the rotation-only fit as a fallback at small parallax
+(measured on a 40 s simulated V2_01 flight, 20 Hz pairs, median parallax 0.8 px): the
+cheirality vote of ``recoverPose`` picks the wrong one of the twisted pair (180 deg off)
+for a third of the pairs, whose translation is a few millimetres; RANSAC's rotation (its
+best minimal sample) has a median error of 0.07 deg, the refined one 0.010 deg; and the
+rotation-only fit absorbs the translation's parallax into the rotation (median error
+0.15 deg, a gyro bias wrong by up to 0.03 rad/s), worse than the refined essential matrix
+at every parallax measured, down to 0.3 px.
 
-   Why not ``cv2.recoverPose`` and the rotation-only fit as a fallback at small parallax
-   (measured on a 40 s simulated V2_01 flight, 20 Hz pairs, median parallax 0.8 px): the
-   cheirality vote of ``recoverPose`` picks the wrong one of the twisted pair (180 deg off)
-   for a third of the pairs, whose translation is a few millimetres; RANSAC's rotation (its
-   best minimal sample) has a median error of 0.07 deg, the refined one 0.010 deg; and the
-   rotation-only fit absorbs the translation's parallax into the rotation (median error
-   0.15 deg, a gyro bias wrong by up to 0.03 rad/s), worse than the refined essential matrix
-   at every parallax measured, down to 0.3 px.
-2. :func:`gyro_bias_least_squares` preintegrates the gyro over each interval
-   (:func:`uavcal_jax.imu.preintegrate`, every sample) and solves for the bias that aligns the
-   preintegrated rotations with the visual ones
-   (:func:`uavcal_jax.vio.initialize.gyro_bias_from_relative_rotations`), by Gauss-Newton,
-   re-preintegrating at each new bias, with intervals whose residual is more than
-   ``outlier_mad`` MADs above the median dropped.
-3. :func:`visual_gyro_bias` composes the two for a recording (cached beside it by
-   :func:`cached_relative_rotations`).
-
-Only the gyro is observable this way: relative rotations carry no information about the
-accelerometer (that needs the translation's metric scale and gravity, i.e. the full VIO).
+The cache of these rotations beside a recording is :mod:`uavcal_jax.vio.rotation_cache`; the
+gyro bias they imply, :mod:`uavcal_jax.vio.visual_gyro`.
 
 Conventions: ``R[k]`` maps body-frame vectors at ``t1_ns[k]`` to the body frame at
 ``t0_ns[k]`` (``R_WB(t0)^T R_WB(t1)``), the convention of a preintegrated ``delta_R`` and of
 the front end's ``R_prev_curr_gyro``. NumPy, float64; times int64 nanoseconds.
-
-One module, over 450 lines: one estimator, the visual rotations and the gyro bias fitted to
-them, with its cache beside the recording; a third of it is the measured reasons above.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
-import json
-import os
-import tempfile
 import time
-import warnings
-from pathlib import Path
 from typing import NamedTuple
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from uavcal_jax.data.euroc import read_euroc
-from uavcal_jax.data.sequence import GroundTruth, ImuData, Sequence
+from uavcal_jax.data.sequence import GroundTruth, Sequence
 from uavcal_jax.errors import DataError
-from uavcal_jax.imu import interval_batch, preintegrate
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.vio.config import NOMINAL_FOCAL_PX, FrontendConfig
 from uavcal_jax.vio.frontend import FeatureTracker
-from uavcal_jax.vio.initialize import gyro_bias_from_relative_rotations, rotation_residuals
 
 __all__ = [
     "METHODS",
-    "GyroBiasFit",
-    "VisualGyroConfig",
+    "MIN_PARALLAX_PX",
+    "MIN_TRACKS",
     "VisualRotations",
-    "cache_path",
-    "cached_relative_rotations",
-    "gyro_bias_least_squares",
     "relative_rotations",
     "timed_relative_rotations",
     "true_relative_rotations",
-    "visual_gyro_bias",
 ]
 
 #: How a pair's rotation was found (``VisualRotations.method``): none (too few tracks, the
 #: pair is invalid), the essential matrix, or the rotation-only fit (too little parallax).
 METHODS = ("none", "essential", "rotation")
-#: Bumped when the estimate changes, so old caches are not reused.
-_CACHE_VERSION = 1
-_CACHE_PREFIX = "visual_rotations"
-
-
-@dataclasses.dataclass(frozen=True)
-class VisualGyroConfig:
-    """The visual gyro-bias estimator (``visual-ls``).
-
-    Attributes:
-        frontend: the KLT tracker's settings; its ``ransac_threshold_px`` (at
-            :data:`~uavcal_jax.vio.config.NOMINAL_FOCAL_PX`) is also the rotation fits'
-            inlier threshold.
-        every: frames per interval: pairs ``(0, every), (every, 2 every), ...``. A longer
-            interval rotates more, so the bias (a rate) grows against the per-pair noise;
-            tracks must survive it.
-        min_tracks: fewest shared tracks (and inliers) for a pair to count.
-        min_parallax_px: the median rotation-compensated parallax (pixels at the nominal
-            focal) below which the translation is too small for the essential matrix, and the
-            rotation-only fit is used.
-        iterations: Gauss-Newton iterations of the bias (each re-preintegrates the gyro).
-        outlier_mad: intervals whose residual norm exceeds the median by more than this many
-            MADs (scaled to a standard deviation) are dropped.
-    """
-
-    frontend: FrontendConfig = FrontendConfig()
-    every: int = 1
-    min_tracks: int = 20
-    min_parallax_px: float = 0.1
-    iterations: int = 3
-    outlier_mad: float = 5.0
-
-    def __post_init__(self) -> None:
-        if int(self.every) < 1 or int(self.min_tracks) < 8 or int(self.iterations) < 1:
-            raise ValueError("every and iterations must be >= 1 and min_tracks >= 8, got "
-                             f"{self.every}, {self.iterations}, {self.min_tracks}")
-        if not (self.min_parallax_px >= 0 and self.outlier_mad > 0):
-            raise ValueError("min_parallax_px must be >= 0 and outlier_mad > 0")
+#: Fewest shared tracks (and inliers) for a pair to count (the default; the estimator's
+#: ``VisualGyroConfig.min_tracks``).
+MIN_TRACKS = 20
+#: The median rotation-compensated parallax (pixels at the nominal focal) below which the
+#: rotation-only fit is used (the default; ``VisualGyroConfig.min_parallax_px``).
+MIN_PARALLAX_PX = 0.1
 
 
 class VisualRotations(NamedTuple):
@@ -149,28 +90,6 @@ class VisualRotations(NamedTuple):
     method: np.ndarray
     parallax_px: np.ndarray
 
-
-class GyroBiasFit(NamedTuple):
-    """What :func:`gyro_bias_least_squares` found besides the bias.
-
-    Attributes:
-        bias_gyro: (3,) rad/s, the estimate (also returned on its own).
-        cov: (3, 3) (rad/s)^2, its covariance from the residuals, treating them as i.i.d.
-            per axis: ``sigma^2 (A^T A)^-1`` (``A`` the used intervals' bias Jacobians).
-        residuals: (K,) x 3 rad, ``log(delta_R^T R_visual)`` at the final bias (NaN where the
-            interval was not usable).
-        per_interval: (K, 3) rad/s, the bias each used interval alone implies (NaN elsewhere).
-        used: (K,) bool, intervals in the final solve (valid, inside the IMU stream, not
-            outliers).
-        sigma: rad, the residuals' standard deviation per axis.
-    """
-
-    bias_gyro: np.ndarray
-    cov: np.ndarray
-    residuals: np.ndarray
-    per_interval: np.ndarray
-    used: np.ndarray
-    sigma: float
 
 
 # --- one pair -----------------------------------------------------------------------------
@@ -334,8 +253,8 @@ def _pair_rotation(xy0: np.ndarray, xy1: np.ndarray, threshold: float, min_track
 
 
 def relative_rotations(sequence: Sequence, config: FrontendConfig | None = None, *,
-                       every: int = 1, min_tracks: int = VisualGyroConfig.min_tracks,
-                       min_parallax_px: float = VisualGyroConfig.min_parallax_px,
+                       every: int = 1, min_tracks: int = MIN_TRACKS,
+                       min_parallax_px: float = MIN_PARALLAX_PX,
                        camera: str = "cam0", progress: bool = False) -> VisualRotations:
     """Body-frame relative rotations between frames ``(0, every), (every, 2 every), ...`` of
     ``sequence``'s ``camera``, from the front end's tracks (module docstring).
@@ -345,7 +264,7 @@ def relative_rotations(sequence: Sequence, config: FrontendConfig | None = None,
             extrinsic).
         config: the tracker's settings (default :class:`FrontendConfig`'s).
         every: frames per pair (>= 1).
-        min_tracks, min_parallax_px: see :class:`VisualGyroConfig`.
+        min_tracks, min_parallax_px: :data:`MIN_TRACKS`, :data:`MIN_PARALLAX_PX`.
         camera: the camera to track.
         progress: show a progress bar.
 
@@ -359,8 +278,8 @@ def relative_rotations(sequence: Sequence, config: FrontendConfig | None = None,
 
 
 def timed_relative_rotations(sequence: Sequence, config: FrontendConfig | None = None, *,
-                             every: int = 1, min_tracks: int = VisualGyroConfig.min_tracks,
-                             min_parallax_px: float = VisualGyroConfig.min_parallax_px,
+                             every: int = 1, min_tracks: int = MIN_TRACKS,
+                             min_parallax_px: float = MIN_PARALLAX_PX,
                              camera: str = "cam0", progress: bool = False
                              ) -> tuple[VisualRotations, float]:
     """:func:`relative_rotations` and the wall time it took per frame, seconds (image loading,
@@ -426,161 +345,3 @@ def true_relative_rotations(ground_truth: GroundTruth, t0_ns: np.ndarray, t1_ns:
     R0 = slerp((t0_ns - t[0]) * 1e-9)
     R1 = slerp((t1_ns - t[0]) * 1e-9)
     return (R0.inv() * R1).as_matrix().reshape(-1, 3, 3)
-
-
-# --- the cache ----------------------------------------------------------------------------
-
-
-def _cache_tag(config: VisualGyroConfig, camera: str) -> str:
-    fields = {"version": _CACHE_VERSION, "camera": camera, "every": config.every,
-              "min_tracks": config.min_tracks, "min_parallax_px": config.min_parallax_px,
-              "frontend": dataclasses.asdict(config.frontend)}
-    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:8]
-
-
-def cache_path(folder: str | Path, config: VisualGyroConfig | None = None,
-               camera: str = "cam0") -> Path:
-    """``<folder>/visual_rotations.<8 hex digits of the settings>.npz``."""
-    config = config if config is not None else VisualGyroConfig()
-    return Path(folder) / f"{_CACHE_PREFIX}.{_cache_tag(config, camera)}.npz"
-
-
-def cached_relative_rotations(folder: str | Path, config: VisualGyroConfig | None = None, *,
-                              sequence: Sequence | None = None, camera: str = "cam0",
-                              progress: bool = False) -> VisualRotations:
-    """:func:`relative_rotations` of the recording in ``folder``, computed once and kept in
-    :func:`cache_path` beside it (written to a temporary file and renamed, so an interrupted
-    run leaves no half file). A folder that cannot be written to (a read-only dataset) gives
-    the result with a warning and no cache.
-
-    Args:
-        folder: the recording's folder (EuRoC ASL, read with :func:`read_euroc` unless
-            ``sequence`` is given).
-        config: the settings (:class:`VisualGyroConfig`); they name the cache file.
-        sequence: the recording already read from ``folder``.
-    """
-    config = config if config is not None else VisualGyroConfig()
-    path = cache_path(folder, config, camera)
-    if path.is_file():
-        with np.load(path) as z:
-            return VisualRotations(**{name: z[name] for name in VisualRotations._fields})
-    if sequence is None:
-        sequence = read_euroc(folder)
-    rot = relative_rotations(sequence, config.frontend, every=config.every,
-                             min_tracks=config.min_tracks,
-                             min_parallax_px=config.min_parallax_px, camera=camera,
-                             progress=progress)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **rot._asdict())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as e:
-        warnings.warn(f"{path}: visual rotations not cached ({e})", stacklevel=2)
-    return rot
-
-
-# --- the gyro bias ------------------------------------------------------------------------
-
-
-def gyro_bias_least_squares(imu: ImuData, rotations: VisualRotations, *,
-                            bias0: np.ndarray | None = None, iterations: int = 3,
-                            outlier_mad: float = 5.0) -> tuple[np.ndarray, GyroBiasFit]:
-    """The gyro bias (3,) rad/s that best aligns the preintegrated gyro with ``rotations``.
-
-    Each valid interval inside the IMU stream is preintegrated at full rate at the current
-    bias; one Gauss-Newton step (:func:`gyro_bias_from_relative_rotations`) updates the bias,
-    ``iterations`` times. At every iteration the intervals whose post-fit residual norm is
-    more than ``outlier_mad`` scaled MADs above the median are dropped and the step refitted.
-
-    Args:
-        imu: the IMU stream (as recorded: the estimate is the total constant error, sensor
-            bias plus any offset, that ``gyro - bias`` removes).
-        rotations: :class:`VisualRotations` (body frame).
-        bias0: (3,) the starting bias (zeros).
-
-    Returns:
-        ``(bias_gyro (3,), GyroBiasFit)``.
-
-    Raises:
-        DataError: fewer than 2 usable intervals.
-    """
-    t = np.asarray(imu.t_ns, np.int64)
-    K = len(rotations.t0_ns)
-    ok = (np.asarray(rotations.valid, bool) & (rotations.t0_ns >= t[0])
-          & (rotations.t1_ns <= t[-1]) & (rotations.t1_ns > rotations.t0_ns))
-    idx = np.flatnonzero(ok)
-    if len(idx) < 2:
-        raise DataError(f"{len(idx)} usable visual rotations inside the IMU stream (need 2)")
-    batch = interval_batch(t, imu.gyro, imu.accel, rotations.t0_ns[idx], rotations.t1_ns[idx])
-    R_vis = np.asarray(rotations.R, np.float64)[idx]
-    bg = np.zeros(3) if bias0 is None else np.asarray(bias0, np.float64).reshape(3)
-    keep = np.ones(len(idx), bool)
-
-    def linearise(bg):
-        pim = preintegrate(batch.dt, batch.gyro, batch.accel, bg, mask=batch.mask)
-        return np.asarray(pim.delta_R, np.float64), np.asarray(pim.d_R_d_bg, np.float64)
-
-    for _ in range(int(iterations)):
-        dR, J = linearise(bg)
-        e = rotation_residuals(R_vis, dR)
-        for _ in range(2):  # solve, drop outliers by the post-fit residual, solve again
-            d = gyro_bias_from_relative_rotations(R_vis, dR, J, keep)
-            keep = _mad_inliers(np.linalg.norm(e - J @ d, axis=1), outlier_mad)
-        bg = bg + gyro_bias_from_relative_rotations(R_vis, dR, J, keep)
-    dR, J = linearise(bg)
-    e = rotation_residuals(R_vis, dR)
-    A = J[keep].reshape(-1, 3)
-    dof = max(3 * int(keep.sum()) - 3, 1)
-    sigma = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
-    cov = sigma**2 * np.linalg.inv(A.T @ A)
-    residuals = np.full((K, 3), np.nan)
-    residuals[idx] = e
-    per = np.full((K, 3), np.nan)
-    per[idx[keep]] = bg + np.linalg.solve(J[keep], e[keep][..., None])[..., 0]
-    used = np.zeros(K, bool)
-    used[idx[keep]] = True
-    return bg, GyroBiasFit(bias_gyro=bg, cov=cov, residuals=residuals, per_interval=per,
-                           used=used, sigma=sigma)
-
-
-def _mad_inliers(r: np.ndarray, k: float) -> np.ndarray:
-    med = float(np.median(r))
-    mad = 1.4826 * float(np.median(np.abs(r - med)))
-    return r <= med + k * max(mad, 1e-12)
-
-
-def visual_gyro_bias(sequence: Sequence, config: VisualGyroConfig | None = None, *,
-                     cache: bool = True, progress: bool = False
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The ``visual-ls`` estimator: the gyro's constant error (3,) rad/s from the recording's
-    own frames and IMU, no ground truth (accelerometer: not observable this way).
-
-    Args:
-        sequence: a recording with a camera, its extrinsic and an IMU stream.
-        config: :class:`VisualGyroConfig`.
-        cache: keep the visual rotations beside the recording (:func:`cached_relative_rotations`)
-            when it has a folder.
-
-    Returns:
-        ``(bias_gyro (3,) rad/s, per_interval (K, 3) rad/s: the bias each used interval alone
-        implies, NaN for unused ones, times (K,) s: the intervals' mid-points)``.
-    """
-    config = config if config is not None else VisualGyroConfig()
-    if sequence.imu is None:
-        raise DataError("no IMU stream", sequence.root or sequence.name)
-    if cache and sequence.root is not None:
-        rot = cached_relative_rotations(sequence.root, config, sequence=sequence,
-                                        progress=progress)
-    else:
-        rot = relative_rotations(sequence, config.frontend, every=config.every,
-                                 min_tracks=config.min_tracks,
-                                 min_parallax_px=config.min_parallax_px, progress=progress)
-    bg, fit = gyro_bias_least_squares(sequence.imu, rot, iterations=config.iterations,
-                                      outlier_mad=config.outlier_mad)
-    times = 0.5 * (rot.t0_ns + rot.t1_ns).astype(np.float64) * 1e-9
-    return bg, fit.per_interval, times
