@@ -91,7 +91,7 @@ MODULE_SECONDS = {
     "test_pipeline_offsets.py": 125, "test_vio_marginalize.py": 110,
     "test_preintegration_gtsam.py": 100, "test_calib_train.py": 90, "test_calib_model.py": 90,
     "test_vio_flight.py": 80, "test_calib_loop.py": 75, "test_vio_solver.py": 70,
-    "test_sim_camera.py": 65, "test_cli_vio.py": 65,
+    "test_sim_camera.py": 65, "test_cli_vio.py": 65, "test_closed_loop.py": 60,
 }
 
 
