@@ -1,10 +1,11 @@
 """``uavcal demo``: the main job on built-in defaults, no external data.
 
 A short procedural flight past a moving target is simulated with a physical-range IMU offset;
-the offset is estimated without ground truth by each estimator of ``uavcal calib predict``; then
-``uavcal run``'s pipeline (:func:`uavcal_jax.pipeline.run.run_pipeline`) flies it: the stereo
-VIO on the IMU minus the default estimator's offset, the shipped detector beside it, the
-target located, filtered and followed. Everything is printed against the simulator's truth.
+``uavcal run``'s pipeline (:func:`uavcal_jax.pipeline.run.run_pipeline`) flies it in one VIO
+pass: the stereo VIO on the recorded IMU, whose bias states are the default offset estimate,
+the shipped detector beside it, the target located, filtered and followed; then the other
+estimators of ``uavcal calib predict`` estimate the offset without ground truth, beside the
+run's. Everything is printed against the simulator's truth.
 
 The demo is a list of :class:`DemoStep`; each step reads and extends a shared context dict
 and returns a JSON-able result.
@@ -132,7 +133,7 @@ def _read(ctx: dict[str, Any]) -> dict[str, Any]:
 
     # the simulator's output needs no repairs
     seq, fmt = read_sequence(ctx["root"], strict=True)
-    ctx["sequence"] = seq
+    ctx["sequence"], ctx["format"] = seq, fmt
     return summarize_sequence(seq, fmt)
 
 
@@ -142,8 +143,8 @@ def _show_summary(result: dict[str, Any]) -> str:
     return format_sequence_summary(result)
 
 
-#: The offset estimators the demo compares (``uavcal calib predict --method``); the run step
-#: removes the default method's estimate.
+#: The offset estimators the demo compares (``uavcal calib predict --method``); the run's own
+#: method's estimate is the run's (for the default, vio-bias, read from its one VIO pass).
 DEMO_METHODS = ("vio-bias", "visual-ls", "transformer")
 
 
@@ -151,7 +152,7 @@ def _calibrate(ctx: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
 
     from uavcal_jax.data.true_offset import true_offset
-    from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD
+    from uavcal_jax.pipeline.offset_estimate import SIX_CHANNELS
     from uavcal_jax.pipeline.predict_offset import predict_offset, score
 
     seq = ctx["sequence"]
@@ -159,21 +160,24 @@ def _calibrate(ctx: dict[str, Any]) -> dict[str, Any]:
     injected = None if injected is None else np.asarray(injected)
     # the constant to subtract: the injected offset plus the simulated IMU's own bias
     true = true_offset("total", injected, seq.ground_truth)
-    methods, estimates = {}, {}
+    run = ctx["run_offset"]  # the run's estimate, scored by the run under its label and span
+    methods = {}
     for method in DEMO_METHODS:
+        if method == run["method"]:
+            offset = np.asarray(run["estimate"], np.float64)
+            methods[method] = {"offset": offset.tolist(), "channels": list(SIX_CHANNELS),
+                               "label": run["label"], "error": (offset - run["true"]).tolist()}
+            continue
         summary, estimate = predict_offset(seq, method, progress=ctx["progress"])
-        estimates[method] = estimate.offset
         # each against the truth under its own label and span, over all six channels
         scored = score(estimate, injected, seq.ground_truth, all_channels=True)
         methods[method] = {"offset": estimate.offset.tolist(),
                            "channels": list(estimate.channels), "label": summary["label"],
                            "error": scored["error"]}
-    ctx["offset_estimate"] = estimates[DEFAULT_METHOD]
-    ctx["offset_method"] = DEFAULT_METHOD
-    return {"channels": ["gx", "gy", "gz", "ax", "ay", "az"], "injected":
+    return {"channels": list(SIX_CHANNELS), "injected":
             None if injected is None else injected.tolist(), "true": true.tolist(),
             "no_correction_error": (-true).tolist(), "methods": methods,
-            "removed_by_run": DEFAULT_METHOD}
+            "run_method": run["method"], "removed_by_run": bool(run["removed"])}
 
 
 def _show_offsets(result: dict[str, Any]) -> str:
@@ -188,8 +192,10 @@ def _show_offsets(result: dict[str, Any]) -> str:
     return "\n".join(rows + [
         "      (gyro rad/s, accel m/s^2; the truth is the injected offset plus the simulated "
         "IMU's own bias, from the ground truth, which no method reads; visual-ls estimates the "
-        "gyro only, transformer: the shipped small weights; the run removes "
-        f"{result['removed_by_run']}'s estimate)"])
+        "gyro only, transformer: the shipped small weights; "
+        + (f"the run removed {result['run_method']}'s estimate before its VIO)"
+           if result["removed_by_run"] else
+           f"{result['run_method']}: read from the run's own VIO pass, on the recorded IMU)")])
 
 
 def _run(ctx: dict[str, Any]) -> dict[str, Any]:
@@ -197,9 +203,9 @@ def _run(ctx: dict[str, Any]) -> dict[str, Any]:
     from uavcal_jax.plots import plot_run
 
     result = run_pipeline(ctx["root"], ctx["out"] / "run", ctx["config"]["run"],
-                          offsets=ctx["offset_estimate"],
-                          offsets_from=ctx["offset_method"], progress=ctx["progress"],
+                          read=(ctx["sequence"], ctx["format"]), progress=ctx["progress"],
                           inputs={"command": "uavcal demo"})
+    ctx["run_offset"] = result.offset
     figures = plot_run(result)
     return {"metrics": result.metrics, "out": str(result.out_dir),
             "figures": {k: str(v) for k, v in figures.items()}}
@@ -218,11 +224,12 @@ STEPS: list[DemoStep] = [
              f"car ({DEMO_SIM.resolution[0]}x{DEMO_SIM.resolution[1]} stereo, IMU with a "
              "constant offset, depth, target labels)", _simulate),
     DemoStep("read", "read it back as an EuRoC ASL folder", _read, _show_summary),
-    DemoStep("calibrate", "estimate the IMU's constant error without ground truth: the VIO's "
-             "bias, the visual gyro least squares and the transformer (shipped weights)",
+    DemoStep("run", "uavcal run, one VIO pass: the VIO on the recorded IMU (its bias states "
+             "are the offset estimate), the shipped detector beside it, the car located, "
+             "filtered and followed", _run, _show_run),
+    DemoStep("calibrate", "the IMU's constant error without ground truth: the run's VIO bias "
+             "beside the visual gyro least squares and the transformer (shipped weights)",
              _calibrate, _show_offsets),
-    DemoStep("run", "uavcal run: the VIO on the corrected IMU, the shipped detector beside it, "
-             "the car located, filtered and followed", _run, _show_run),
 ]
 
 
@@ -230,15 +237,16 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo", help="the main job on a short simulated flight (no data needed)",
         description="Simulate a short procedural flight past a moving car, whose IMU carries a "
-        "constant offset; estimate that offset without ground truth with the estimators of "
-        "`uavcal calib predict` (the VIO's bias, the visual gyro least squares, the transformer "
-        "with its shipped weights), printed against the truth (the offset plus the simulated "
-        "sensor's own bias) and against no correction; then run `uavcal run`'s pipeline on the "
-        "flight: the stereo VIO on the IMU minus the default method's estimate, the shipped "
-        "detector on every left frame beside it, the car located from the depth images, "
-        "filtered and followed. Prints the offset, the ATE, the target's localisation error, "
-        "the follow figures and the time per frame in steady state, and the output folder "
-        "(the recording, and uavcal run's files and figures).")
+        "constant offset; run `uavcal run`'s pipeline on the flight in one VIO pass: the "
+        "stereo VIO on the recorded IMU, whose bias states are the default offset estimate, "
+        "the shipped detector on every left frame beside it, the car located from the depth "
+        "images, filtered and followed; then estimate the offset without ground truth with the "
+        "other estimators of `uavcal calib predict` (the visual gyro least squares, the "
+        "transformer with its shipped weights), printed beside the run's against the truth "
+        "(the offset plus the simulated sensor's own bias) and against no correction. Prints "
+        "the ATE, the target's localisation error, the follow figures, the time per frame in "
+        "steady state, the offsets, and the output folder (the recording, and uavcal run's "
+        "files and figures).")
     p.add_argument("--out", type=Path, metavar="DIR", default=None,
                    help="write everything under DIR (DIR/recording, DIR/run); DIR must not "
                         "exist or be empty [default: a new folder in the temporary directory]")
