@@ -194,6 +194,7 @@ def _params(run_dir, seqs):
     return [np.asarray(x) for x in jax.tree.leaves(state.params)]
 
 
+@pytest.mark.heavy  # 200 s on CI: calib train's resume is tested in test_runs/test_calib_loop
 def test_loo_two_seeds_resume_and_eval(seqs, tmp_path, capsys):
     full = tmp_path / "full"
     assert _train(seqs, full) == 0

@@ -280,7 +280,10 @@ def test_demo_json(capsys, tmp_path):
     methods = calib["methods"]
     assert list(methods) == ["vio-bias", "visual-ls", "transformer"]
     for m in methods.values():
-        np.testing.assert_allclose(np.subtract(m["offset"], calib["true"]), m["error"])
+        # each scored against the truth under its own label and span (vio-bias: the tail of
+        # the flight), which differs from the whole flight's only by the sensor bias's walk
+        np.testing.assert_allclose(np.subtract(m["offset"], m["true"]), m["error"], atol=1e-12)
+        np.testing.assert_allclose(m["true"], calib["true"], atol=0.02)
     # blind estimates (no ground truth read) of the gyro within 5e-3 rad/s per axis
     for name in ("vio-bias", "visual-ls"):
         assert np.all(np.abs(methods[name]["error"][:3]) < 5e-3), (name, methods[name])

@@ -166,14 +166,15 @@ def _calibrate(ctx: dict[str, Any]) -> dict[str, Any]:
         if method == run["method"]:
             offset = np.asarray(run["estimate"], np.float64)
             methods[method] = {"offset": offset.tolist(), "channels": list(SIX_CHANNELS),
-                               "label": run["label"], "error": (offset - run["true"]).tolist()}
+                               "label": run["label"], "true": run["true"].tolist(),
+                               "error": (offset - run["true"]).tolist()}
             continue
         summary, estimate = predict_offset(seq, method, progress=ctx["progress"])
         # each against the truth under its own label and span, over all six channels
         scored = score(estimate, injected, seq.ground_truth, all_channels=True)
         methods[method] = {"offset": estimate.offset.tolist(),
                            "channels": list(estimate.channels), "label": summary["label"],
-                           "error": scored["error"]}
+                           "true": scored["true"], "error": scored["error"]}
     return {"channels": list(SIX_CHANNELS), "injected":
             None if injected is None else injected.tolist(), "true": true.tolist(),
             "no_correction_error": (-true).tolist(), "methods": methods,
