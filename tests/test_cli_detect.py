@@ -63,7 +63,7 @@ def _subparser(parser: argparse.ArgumentParser, *names: str) -> argparse.Argumen
 def test_parser_defaults_are_the_dataclass_defaults():
     """Every option of `detect train/eval/predict` takes its default and choices from the
     configuration dataclasses and constants; a new option fails here until it is listed."""
-    from uavcal_jax.commands.detect import PREDICT_BATCH, train_config
+    from uavcal_jax.commands.detect import PREDICT_BATCH
     from uavcal_jax.data.detection_labels import LABEL_FORMATS
     from uavcal_jax.detect.config import (
         EVAL_PREDICT,
@@ -74,7 +74,7 @@ def test_parser_defaults_are_the_dataclass_defaults():
         SERVE_PREDICT,
         TrainConfig,
     )
-    from uavcal_jax.detect.options import TRAIN_FLAGS
+    from uavcal_jax.detect.options import TRAIN_FLAGS, train_options
     from uavcal_jax.runs import KINDS
 
     paper = TrainConfig()
@@ -109,8 +109,9 @@ def test_parser_defaults_are_the_dataclass_defaults():
                 tuple(choices) if choices else None), (action_name, dest)
     # the parsed defaults resolve to exactly the recipes' configurations
     argv = ["detect", "train", "--data", "d", "--out", "o"]
-    assert train_config(parser.parse_args(argv)) == TrainConfig.paper()
-    assert train_config(parser.parse_args([*argv, "--optimizer", "sgd"])) == TrainConfig.yolov5()
+    sgd = [*argv, "--optimizer", "sgd"]
+    assert train_options(parser.parse_args(argv)).train == TrainConfig.paper()
+    assert train_options(parser.parse_args(sgd)).train == TrainConfig.yolov5()
     assert TrainConfig().predict == EVAL_PREDICT
     choices = {f.key: tuple(f.choices) for f in TRAIN_FLAGS if f.choices}
     assert choices == {"detector.model": MODELS, "train.lr_schedule": SCHEDULES,
@@ -119,7 +120,6 @@ def test_parser_defaults_are_the_dataclass_defaults():
 
 def test_train_options_set_their_fields():
     """Each `detect train` option sets its field over the --optimizer recipe."""
-    from uavcal_jax.commands.detect import train_config
     from uavcal_jax.detect.augment import AugmentConfig
     from uavcal_jax.detect.config import DetectConfig, DetectorConfig, TrainConfig
     from uavcal_jax.detect.options import train_options
@@ -139,7 +139,7 @@ def test_train_options_set_their_fields():
         detector, TrainConfig.paper(**changes))
     assert train_options(parser.parse_args([*argv, "--optimizer", "sgd"])) == DetectConfig(
         detector, TrainConfig.yolov5(**changes))
-    assert train_config(parser.parse_args([*argv, "--no-augment"])) == TrainConfig.paper(
+    assert train_options(parser.parse_args([*argv, "--no-augment"])).train == TrainConfig.paper(
         **{**changes, "augment": None})
 
 

@@ -209,14 +209,6 @@ def _require_run(run: str) -> Path:
 # ----------------------------------------------------------------------------- train
 
 
-def train_config(args):
-    """The :class:`~uavcal_jax.detect.config.TrainConfig` of parsed ``detect train`` options
-    (the paper's recipe, or YOLOv5's with ``--optimizer sgd``, then the options given)."""
-    from uavcal_jax.detect.options import train_options
-
-    return train_options(args).train
-
-
 def run_train(args) -> int:
     from uavcal_jax.detect.datasets import load_dataset
     from uavcal_jax.detect.options import train_options

@@ -39,10 +39,8 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
-from uavcal_jax.data.sequence import GroundTruth, Sequence
-from uavcal_jax.errors import DataError
+from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.vio.config import NOMINAL_FOCAL_PX, FrontendConfig
 from uavcal_jax.vio.frontend import FeatureTracker
@@ -54,7 +52,6 @@ __all__ = [
     "VisualRotations",
     "relative_rotations",
     "timed_relative_rotations",
-    "true_relative_rotations",
 ]
 
 #: How a pair's rotation was found (``VisualRotations.method``): none (too few tracks, the
@@ -325,23 +322,3 @@ def timed_relative_rotations(sequence: Sequence, config: FrontendConfig | None =
     return VisualRotations(t0_ns=t[firsts], t1_ns=t[firsts + every], R=R, inliers=inliers,
                            valid=method > 0, method=method,
                            parallax_px=parallax * NOMINAL_FOCAL_PX), seconds
-
-
-def true_relative_rotations(ground_truth: GroundTruth, t0_ns: np.ndarray, t1_ns: np.ndarray
-                            ) -> np.ndarray:
-    """(K, 3, 3) ground-truth ``R_WB(t0)^T R_WB(t1)`` (slerp between the ground truth's
-    samples): the reference the visual rotations are scored against, and the oracle's input.
-
-    Raises:
-        DataError: a time outside the ground truth.
-    """
-    t = np.asarray(ground_truth.t_ns, np.int64)
-    t0_ns, t1_ns = np.asarray(t0_ns, np.int64), np.asarray(t1_ns, np.int64)
-    if len(t0_ns) and (min(t0_ns.min(), t1_ns.min()) < t[0]
-                       or max(t0_ns.max(), t1_ns.max()) > t[-1]):
-        raise DataError("frame times outside the ground truth's span")
-    q = np.asarray(ground_truth.quaternion, np.float64)
-    slerp = Slerp((t - t[0]) * 1e-9, Rotation.from_quat(q[:, [1, 2, 3, 0]]))
-    R0 = slerp((t0_ns - t[0]) * 1e-9)
-    R1 = slerp((t1_ns - t[0]) * 1e-9)
-    return (R0.inv() * R1).as_matrix().reshape(-1, 3, 3)
