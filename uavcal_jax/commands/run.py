@@ -20,11 +20,11 @@ offset is read from its own bias states (one VIO pass; reported, not removed); a
 method (--set offset.method=visual-ls|self-calib|transformer, `uavcal calib predict`'s) runs
 first and its estimate is removed, as is --offsets FILE's; --no-offset removes none; (2) run
 the stereo VIO while (3) the detector runs on the left camera in a second thread (every frame,
-or every k-th: --set detect.every=K); (4) take the longest track of the class to follow,
-locate each of its boxes in the world (from the depth image, or from stereo disparity when the
-recording has none) and filter it (constant-velocity Kalman filter); (5) compute follow
-set-points: a fixed distance and height from the target, facing it, speed and yaw-rate
-limited.
+or every k-th: --set detect.every=K); (4) an online tracker, frame by frame as on the drone,
+follows the track of the class seen longest so far, locates each of its boxes in the world
+(from the depth image, or from stereo disparity when the recording has none) and filters it
+(constant-velocity Kalman filter); (5) and computes follow set-points: a fixed distance and
+height from the target, facing it, speed and yaw-rate limited.
 
 OUT receives, under these names:
   trajectory.txt        the VIO trajectory (TUM: t x y z qx qy qz qw; body = IMU frame)
