@@ -53,6 +53,7 @@ def test_hover_then_fly_runs_to_the_end_within_bounded_error(flight):
     assert np.all(flags["landmarks"][1:] > 20)
 
 
+@pytest.mark.heavy  # 3 min on CI with its flight; resets and coasting: test_vio_failure
 def test_twenty_black_frames_in_flight_coast_and_recover(flight):
     frames, _ = process_frames(flight, BLACK)
     assert all(f.has_pose and np.all(np.isfinite(f.position)) for f in frames)
