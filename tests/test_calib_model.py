@@ -189,6 +189,7 @@ def test_rgb_path_is_gray_plus_colour_compression(gray, sequence):
                                rtol=1e-4)
 
 
+@pytest.mark.heavy  # 70 s on CI; bfloat16 is off by default
 def test_bfloat16_frame_encoder_rounds_only_its_products(gray, sequence):
     """``frame_encoder_dtype="bfloat16"``: the same parameters (a float32 checkpoint loads),
     frame tokens within bfloat16 rounding of the float32 ones but not equal to them (the

@@ -370,6 +370,7 @@ def test_isotropic_statistics_are_those_of_the_imu_over_random_mountings():
     np.testing.assert_allclose(stats.std[3:], accel_rms, rtol=1e-4)
 
 
+@pytest.mark.heavy  # CI budget: an option, 20+ s
 def test_random_mounting_trains_on_turned_windows_and_refuses_the_paper_protocol(parallel):
     _, batch = parallel
     config = apply_overrides(CONFIG, ["train.mounting=random"])
@@ -414,6 +415,7 @@ def test_tilt_loss_is_the_squared_distance_and_the_angle_over_labelled_frames():
     np.testing.assert_allclose(float(angle), 45.0, rtol=1e-5)
 
 
+@pytest.mark.heavy  # CI budget: an option, 30 s
 def test_tilt_head_learns_gravity_without_changing_the_untrained_offsets(parallel):
     parts, batch = parallel
     tilt_batch = gather(parts, np.arange(batch["imu"].shape[0]), TILT.model, "gyro")

@@ -96,6 +96,7 @@ def test_total_label_adds_the_sensor_bias_to_the_offset(single):
 
 
 
+@pytest.mark.heavy  # CI budget: 50 s; the CLI run with an uncertainty stays
 def test_uncertainty_head_leaves_the_estimate_alone(single):
     """``model.variance``: the offsets' parameters after ``STEPS`` steps are those of the model
     without it, to rounding (the NLL's gradient is stopped before the decoder, Adam is per

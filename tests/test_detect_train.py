@@ -131,6 +131,7 @@ def test_resume_reproduces_uninterrupted_run(tiny_runs):
     np.testing.assert_allclose([r["loss"] for r in ha], [r["loss"] for r in hb], rtol=1e-5)
 
 
+@pytest.mark.heavy  # CI budget: 80 s compiling the exported model again
 def test_export_matches_in_process(tiny_runs, tmp_path):
     from uavcal_jax.detect.export import export_predict, load_exported
     from uavcal_jax.detect.predict import detect_images, make_predict_fn

@@ -72,8 +72,11 @@ def _random_windows(rng, n_windows=5, n_max=60):
     return lengths, dts, gyros, accels, mask
 
 
-@pytest.mark.parametrize("scheme, bias_covariance",
-                         [("tangent", False), ("manifold", False), ("tangent", True)])
+@pytest.mark.parametrize("scheme, bias_covariance", [
+    ("tangent", False),
+    # 25-30 s each on CI: heavy
+    pytest.param("manifold", False, marks=pytest.mark.heavy),
+    pytest.param("tangent", True, marks=pytest.mark.heavy)])
 def test_vmap_and_batch_equal_loop(x64, scheme, bias_covariance):
     rng = np.random.default_rng(0)
     lengths, dts, gyros, accels, mask = _random_windows(rng)
