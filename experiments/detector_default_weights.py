@@ -47,6 +47,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 from _docs import (  # the script's folder is first on sys.path
     add_write_docs,
@@ -56,11 +57,13 @@ from _docs import (  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import positive, positive_int, print_json
 from uavcal_jax.config import apply_overrides
-from uavcal_jax.detect.datasets import concat_datasets, load_dataset
+from uavcal_jax.detect.datasets import concat_datasets, load_dataset, split_ids
 from uavcal_jax.detect.default_weights import DEFAULT_DETECTOR_RUN, SHIPPED
 from uavcal_jax.detect.evaluate import evaluate_run
 from uavcal_jax.detect.run import RunPaths, export_run
 from uavcal_jax.detect.train import train
+from uavcal_jax.pipeline.detectors import load_network_detector
+from uavcal_jax.pipeline.run_config import DetectStageConfig
 from uavcal_jax.plots import training_curves_writer
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.sim.cache import cached_simulation
@@ -95,10 +98,28 @@ FOLLOW_TARGETS = 2
 PARAMS_DTYPE = "float16"
 #: The held-out flight: (name, trajectory stem or None, seed).
 HELD_OUT = ("MH_04_difficult", "MH_04_difficult", 9000)
+#: Real aerial photos (a YOLO folder; its trucks, buses and minibuses are ``car`` through
+#: :data:`uavcal_jax.detect.datasets.CLASS_ALIASES`), with the fixed split by image of
+#: ``detect_aerial.py`` (:func:`~uavcal_jax.detect.datasets.split_ids`, this fraction, seed 0)
+#: holding out the photos scored as "the real aerial set's held-out split".
+AERIAL = DATA_ROOT / "detection" / "aerial_cars_kit"
+AERIAL_VAL_FRACTION = 0.2
+#: Copies of each real aerial training photo per epoch (each a different random crop): the
+#: photos are few but large and dense, the rendered frames many.
+AERIAL_REPEATS = 8
+#: Real photos with neither cars nor people (their own labels, raccoons, are dropped): what a
+#: real camera shows that is not a target.
+NEGATIVES = DATA_ROOT / "detection" / "raccoon_voc"
+#: The real EuRoC frames scored for false positives (a room with no car and no person).
+MICRO = DATA_ROOT / "euroc_v101_micro"
 
 
 class _BudgetSpent(Exception):
     """Raised by the per-epoch callback when the next epoch would pass ``--budget``."""
+
+
+def _optional_dir(text: str) -> Path | None:
+    return None if text.lower() == "none" else Path(text)
 
 
 def _sim(rate: float, duration: float, seed: int, **kw) -> SimConfig:
@@ -134,6 +155,42 @@ def held_out(args) -> tuple[str, SimConfig]:
                       start=TRAJ_START_S if traj else 0.0)
 
 
+def training_sets(args, folders, train_cfg):
+    """``(train, validation, aerial held-out)`` sets: the rendered flights split by frame
+    (``train_cfg.val_fraction``), the real aerial photos' fixed split (the training photos
+    ``--aerial-repeats`` times), and the real negatives (training only)."""
+    rendered = concat_datasets([(name, load_dataset(f, "sim")) for name, f in folders])
+    classes = rendered.class_names
+    train_ids, val_ids = split_ids(rendered.image_ids, train_cfg.val_fraction,
+                                   train_cfg.split_seed)
+    parts, val_parts = [("sim", rendered.subset(train_ids))], [("sim", rendered.subset(val_ids))]
+    aerial_held_out = None
+    if args.aerial is not None:
+        aerial = load_dataset(args.aerial, "yolo", classes)
+        a_train, a_val = split_ids(aerial.image_ids, AERIAL_VAL_FRACTION, 0)
+        parts += [(f"aerial_{i}", aerial.subset(a_train)) for i in range(args.aerial_repeats)]
+        aerial_held_out = aerial.subset(a_val)
+        val_parts.append(("aerial", aerial_held_out))
+    if args.negatives is not None:
+        parts.append(("negatives", load_dataset(args.negatives, None, classes)))
+    return concat_datasets(parts), concat_datasets(val_parts), aerial_held_out
+
+
+def false_positives(run: Path, frames: list[Path]) -> dict:
+    """Detections at the run's threshold (``uavcal run``'s ``detect.score_threshold``) on real
+    frames that show no car and no person: per frame, the frames with any, the top score."""
+    detector = load_network_detector(run, DetectStageConfig().score_threshold)
+    counts, top = [], 0.0
+    for start in range(0, len(frames), 8):
+        images = [cv2.cvtColor(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE), cv2.COLOR_GRAY2RGB)
+                  for f in frames[start:start + 8]]
+        for det in detector(images, None):
+            counts.append(len(det.scores))
+            top = max([top, *det.scores])
+    return {"frames": len(counts), "per_frame": round(float(np.mean(counts)), 4),
+            "frames_with_any": int(np.count_nonzero(counts)), "top_score": round(top, 3)}
+
+
 def _size_bytes(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
 
@@ -162,6 +219,14 @@ def main() -> None:
                     help=f"EuRoC trajectories, the first of {EUROC_TRAIN}")
     ap.add_argument("--uzh-flights", type=int, default=4,
                     help=f"UZH-FPV indoor trajectories, the first of {UZH_TRAIN}")
+    ap.add_argument("--aerial", type=_optional_dir, default=AERIAL,
+                    help="real aerial photos, a YOLO folder ('none': rendered frames only) "
+                         "[default: %(default)s]")
+    ap.add_argument("--aerial-repeats", type=positive_int, default=AERIAL_REPEATS,
+                    help="copies of each aerial training photo per epoch [default: %(default)s]")
+    ap.add_argument("--negatives", type=_optional_dir, default=NEGATIVES,
+                    help="real photos without targets, any labelled format ('none': no "
+                         "negatives) [default: %(default)s]")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
     ap.add_argument("--rate", type=positive, default=2.0, help="frames per second rendered")
     ap.add_argument("--epochs", type=positive_int, default=SHIPPED.train.epochs,
@@ -192,15 +257,15 @@ def main() -> None:
     test_folder = cached_simulation(test_cfg, args.cache / "held_out", test_name, progress=show)
     t_sim = time.perf_counter() - t0
 
-    dataset = concat_datasets([(name, load_dataset(f, "sim")) for name, f in folders])
     # the preset, --epochs, then --set
     config = apply_overrides(apply_overrides(SHIPPED, {"train.epochs": args.epochs}), args.set)
+    dataset, val_set, aerial_held_out = training_sets(args, folders, config.train)
     run = args.cache / "run"
     shutil.rmtree(run, ignore_errors=True)
     t1 = time.perf_counter()
     stopped_early = False
     try:
-        train(dataset, config.detector, config.train, run,
+        train(dataset, config.detector, config.train, run, val_dataset=val_set,
               progress=show,
               log=lambda line: print(line, file=sys.stderr, flush=True),
               max_steps_per_epoch=args.max_steps,

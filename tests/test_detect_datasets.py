@@ -17,10 +17,11 @@ from uavcal_jax.detect.augment import (
     letterbox,
     mosaic4,
     random_affine,
+    random_crop,
     scale_boxes,
     unletterbox_boxes,
 )
-from uavcal_jax.detect.datasets import detect_format, load_dataset, split_ids
+from uavcal_jax.detect.datasets import class_index, detect_format, load_dataset, split_ids
 from uavcal_jax.detect.loader import DetectionLoader
 from uavcal_jax.errors import DataError, DataRepairWarning
 
@@ -68,6 +69,10 @@ def test_aerial_cars_kit_counts():
     assert (len(train), len(val)) == (52, 13)
     assert split_ids(ds.image_ids) == (train, val)  # fixed
     assert not set(train) & set(val)
+    # in the detector's classes: trucks, buses and minibuses are cars, the cyclists dropped
+    as_car = load_dataset(root, "yolo", ("car", "person"))
+    counts = np.bincount(np.concatenate([r.classes for r in as_car]), minlength=2)
+    assert counts.tolist() == [2546 + 25 + 22, 0]
 
 
 @pytest.mark.realdata
@@ -318,6 +323,40 @@ def test_affine_flip_and_mosaic_keep_boxes_on_objects():
     assert canvas.shape == (192, 256, 3) and len(mb) >= 1
     for x0, y0, x1, y1 in mb.astype(int):
         assert canvas[(y0 + y1) // 2, (x0 + x1) // 2].min() == 255
+
+
+def test_random_crop_keeps_boxes_on_objects_at_every_zoom_and_quarter_turn():
+    img = np.zeros((400, 1200, 3), np.uint8)
+    boxes = np.array([[100.0, 50, 140, 70], [600, 300, 680, 340], [1000, 200, 1030, 260]],
+                     np.float32)
+    for x0, y0, x1, y1 in boxes.astype(int):
+        img[y0:y1, x0:x1] = 255
+    kept = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        out, b, _ = random_crop(img, boxes, np.arange(3), rng, (160, 192), scale=(0.3, 2.5),
+                                rot90=0.5, on_object=0.8, min_area_ratio=0.6)
+        assert out.shape == (160, 192, 3)
+        for x0, y0, x1, y1 in b:  # each kept box is the object's bounding box
+            inside = out[int(np.ceil(y0)):int(y1), int(np.ceil(x0)):int(x1)]
+            assert inside.size and inside.mean() > 150
+            ys, xs = np.nonzero(out[..., 0] > 127)
+            near = (xs >= x0 - 3) & (xs <= x1 + 3) & (ys >= y0 - 3) & (ys <= y1 + 3)
+            assert xs[near].min() >= x0 - 2 and xs[near].max() <= x1 + 1
+            kept += 1
+    assert kept >= 30
+
+
+def test_yolo_classes_by_name_with_aliases(tmp_path):
+    (tmp_path / "classes.txt").write_text("Person\nbus\ncar\nbicycle\n")
+    _image(tmp_path / "a.png", 64, 48, [(5, 5, 20, 20)])
+    (tmp_path / "a.txt").write_text("0 0.2 0.2 0.1 0.1\n1 0.5 0.5 0.2 0.2\n"
+                                    "2 0.7 0.7 0.1 0.1\n3 0.4 0.4 0.1 0.1\n")
+    ds = load_dataset(tmp_path, "yolo", ("car", "person"))
+    assert ds.class_names == ("car", "person")
+    assert ds.records[0].classes.tolist() == [1, 0, 0]  # Person, bus -> car, car; no bicycle
+    assert class_index("minibus", ("car", "person")) == 0
+    assert class_index("truck", ("truck", "car")) == 0  # a model's own class comes first
 
 
 # ------------------------------------------------------------------------------ loader

@@ -173,6 +173,18 @@ def _yolo_label_path(image: Path, root: Path) -> Path:
     return (root / "labels" / rel).with_suffix(".txt")
 
 
+def _yolo_class_list(root: Path) -> Path | None:
+    for candidate in (root / "classes.txt", root / "labels" / "classes.txt"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def has_yolo_class_list(root: str | Path) -> bool:
+    """Whether the YOLO folder ``root`` names its classes (``classes.txt``)."""
+    return _yolo_class_list(Path(root)) is not None
+
+
 def read_yolo(root: str | Path, class_names=None, *, check_images: bool = True
               ) -> DetectionDataset:
     """A YOLO folder: images beside same-named ``.txt`` files (``class cx cy w h``, normalised)
@@ -183,11 +195,8 @@ def read_yolo(root: str | Path, class_names=None, *, check_images: bool = True
     Images without a label file, or with an empty one, are negatives.
     """
     root = require_dir(root)
-    if class_names is None:
-        for candidate in (root / "classes.txt", root / "labels" / "classes.txt"):
-            if candidate.is_file():
-                class_names = read_class_list(candidate)
-                break
+    if class_names is None and has_yolo_class_list(root):
+        class_names = read_class_list(_yolo_class_list(root))
     images = list_images(root)
     if not images:
         raise DataError("no images found", root)

@@ -3,7 +3,9 @@
 Images are ``uint8`` (H, W, 3) RGB; boxes are (n, 4) ``x_min, y_min, x_max, y_max`` pixels.
 The pieces follow YOLOv5 v7.0 (``utils/augmentations.py``, ``utils/dataloaders.py``):
 letterbox, a random affine restricted to scale and translation (rotation/shear available,
-off by default), horizontal flip, HSV jitter and the 4-image mosaic. Every random function
+off by default), horizontal flip, HSV jitter and the 4-image mosaic. :func:`random_crop` adds
+multi-scale crops at the stored resolution (small objects in large photos keep their pixels:
+YOLOv5's ``--multi-scale`` without recompiling for every input size). Every random function
 takes a ``numpy.random.Generator`` so a sample is a pure function of its seed.
 """
 
@@ -32,6 +34,18 @@ class AugmentConfig:
         min_box_px: boxes narrower or lower than this after augmentation are dropped.
         min_area_ratio: boxes that keep less than this fraction of their (scaled) area are
             dropped.
+        crop_scale: ``(lo, hi)`` turns on :func:`random_crop`: each sample is a
+            ``crop_size`` window of the image at its stored resolution zoomed by a
+            log-uniform factor in ``[lo, hi]`` (rotated by up to ``degrees``), instead of the
+            letterboxed whole image; ``None``: off.
+        crop_size: ``(H, W)`` of the training crops (multiples of 32; the network is fully
+            convolutional, so it still predicts at ``DetectorConfig.img_size``).
+        crop_on_object: probability that a crop is centred on a random labelled object
+            (else anywhere): dense-enough batches from large, sparse photos.
+        rot90: probability that a crop is turned by a random quarter turn (a nadir view has
+            no up; unlike a large ``degrees``, it keeps axis-aligned boxes tight).
+        gray: probability of turning a sample grey (one luminance copied to the three
+            channels): a set mixing colour photos with grey cameras' frames (EuRoC's).
     """
 
     scale: float = 0.5
@@ -45,6 +59,17 @@ class AugmentConfig:
     mosaic: float = 0.0
     min_box_px: float = 2.0
     min_area_ratio: float = 0.1
+    crop_scale: tuple[float, float] | None = None
+    crop_size: tuple[int, int] = (320, 320)
+    crop_on_object: float = 0.5
+    rot90: float = 0.0
+    gray: float = 0.0
+
+    def __post_init__(self):
+        # read back from JSON as lists
+        if self.crop_scale is not None:
+            object.__setattr__(self, "crop_scale", tuple(float(v) for v in self.crop_scale))
+        object.__setattr__(self, "crop_size", tuple(int(v) for v in self.crop_size))
 
 
 def resize_long_side(image: np.ndarray, boxes: np.ndarray, long_side: int,
@@ -148,6 +173,13 @@ def random_affine(image: np.ndarray, boxes: np.ndarray, classes: np.ndarray,
     T[0, 2] = rng.uniform(0.5 - translate, 0.5 + translate) * out_w
     T[1, 2] = rng.uniform(0.5 - translate, 0.5 + translate) * out_h
     M = T @ S @ R @ C
+    return _warp(image, boxes, classes, M, s, out_shape, min_box_px, min_area_ratio)
+
+
+def _warp(image, boxes, classes, M, s, out_shape, min_box_px, min_area_ratio):
+    """Apply the 3x3 affine ``M`` (zoom ``s``) to the image and its boxes (the boxes of the
+    warped corners, clipped; those :func:`box_candidates` rejects are dropped)."""
+    out_h, out_w = out_shape
     image = cv2.warpAffine(image, M[:2], dsize=(out_w, out_h),
                            borderValue=(PAD_VALUE, PAD_VALUE, PAD_VALUE))
     n = len(boxes)
@@ -162,6 +194,48 @@ def random_affine(image: np.ndarray, boxes: np.ndarray, classes: np.ndarray,
         keep = box_candidates(boxes * s, new, min_box_px, min_area_ratio)
         boxes, classes = new[keep].astype(np.float32), classes[keep]
     return image, boxes, classes
+
+
+def random_crop(image: np.ndarray, boxes: np.ndarray, classes: np.ndarray,
+                rng: np.random.Generator, out_shape: tuple[int, int], *,
+                scale: tuple[float, float], degrees: float = 0.0, rot90: float = 0.0,
+                on_object: float = 0.5, min_box_px: float = 2.0, min_area_ratio: float = 0.1):
+    """A random ``out_shape = (H, W)`` window of ``image`` zoomed by a log-uniform factor in
+    ``scale = (lo, hi)`` and rotated by up to ``degrees`` about its centre (plus, with
+    probability ``rot90``, a random quarter turn).
+
+    The window's centre is, with probability ``on_object``, the centre of a random box (moved
+    by up to a quarter window), else a uniform point of the image; parts outside the image
+    are padded. Boxes are in pixels of ``image`` in, of the window out.
+    """
+    h, w = image.shape[:2]
+    out_h, out_w = out_shape
+    s = float(np.exp(rng.uniform(np.log(scale[0]), np.log(scale[1]))))
+    if len(boxes) and rng.random() < on_object:
+        b = boxes[rng.integers(len(boxes))]
+        centre = np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2])
+        centre += rng.uniform(-0.25, 0.25, 2) * np.array([out_w, out_h]) / s
+    else:
+        centre = rng.uniform(0, 1, 2) * np.array([w, h])
+    a = rng.uniform(-degrees, degrees) if degrees else 0.0
+    if rot90 and rng.random() < rot90:
+        a += 90.0 * rng.integers(1, 4)
+    R = np.eye(3)
+    R[:2] = cv2.getRotationMatrix2D(angle=a, center=(0, 0), scale=s)
+    C = np.eye(3)
+    C[:2, 2] = -centre
+    T = np.eye(3)
+    T[:2, 2] = out_w / 2, out_h / 2
+    # shrinking: blur first so the zoomed-out crop aliases as a real smaller image would
+    if s < 0.75:
+        image = cv2.resize(image, (max(1, round(w * s)), max(1, round(h * s))),
+                           interpolation=cv2.INTER_AREA)
+        C[:2, 2] *= s
+        R[:2, :2] /= s
+        boxes = boxes * s
+        return _warp(image, boxes, classes, T @ R @ C, 1.0, out_shape, min_box_px,
+                     min_area_ratio)
+    return _warp(image, boxes, classes, T @ R @ C, s, out_shape, min_box_px, min_area_ratio)
 
 
 def hflip(image: np.ndarray, boxes: np.ndarray):
@@ -185,6 +259,11 @@ def augment_hsv(image: np.ndarray, rng: np.random.Generator, hgain: float = 0.01
     lut_val = np.clip(x * r[2], 0, 255).astype(np.uint8)
     hsv = cv2.merge((cv2.LUT(hue, lut_hue), cv2.LUT(sat, lut_sat), cv2.LUT(val, lut_val)))
     return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """RGB uint8 to grey, kept as three equal channels."""
+    return cv2.cvtColor(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), cv2.COLOR_GRAY2RGB)
 
 
 def mosaic4(samples, out_shape: tuple[int, int], rng: np.random.Generator):

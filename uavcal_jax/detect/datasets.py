@@ -26,6 +26,7 @@ import numpy as np
 from uavcal_jax.data.detection_labels import (
     LABEL_FORMATS,
     detect_format,
+    has_yolo_class_list,
     read_coco,
     read_sim_targets,
     read_voc,
@@ -35,12 +36,33 @@ from uavcal_jax.data.detection_records import DetectionDataset, DetectionRecord,
 from uavcal_jax.detect.config import TrainConfig
 from uavcal_jax.errors import DataError
 
+#: Class names that mean one of the detector's classes (lower case): the vehicle types of
+#: aerial sets (KIT's truck, bus and minibus; VisDrone's van, truck and bus) are ``car``,
+#: their walkers ``person``. Used only when the target list lacks the name itself.
+CLASS_ALIASES = {
+    "truck": "car", "bus": "car", "minibus": "car", "van": "car", "vehicle": "car",
+    "pickup": "car", "suv": "car", "pedestrian": "person", "people": "person",
+}
+
+
+def class_index(name: str, class_names) -> int:
+    """Index of ``name`` in ``class_names``: exactly, else ignoring case, else through
+    :data:`CLASS_ALIASES`; -1 when none matches."""
+    lowered = [n.lower() for n in class_names]
+    for candidate in (name, name.lower(), CLASS_ALIASES.get(name.lower())):
+        if candidate in class_names:
+            return tuple(class_names).index(candidate)
+        if candidate is not None and candidate.lower() in lowered:
+            return lowered.index(candidate.lower())
+    return -1
+
 
 def remap_classes(ds: DetectionDataset, class_names) -> DetectionDataset:
-    """Express ``ds`` in another class list (by name); boxes of other classes are dropped."""
+    """Express ``ds`` in another class list (by name, see :func:`class_index`); boxes of other
+    classes are dropped (their images stay, as negatives where nothing is left)."""
     class_names = tuple(class_names)
-    index = {n: i for i, n in enumerate(class_names)}
-    lut = np.array([index.get(n, -1) for n in ds.class_names] + [-1], dtype=np.int32)
+    lut = np.array([class_index(n, class_names) for n in ds.class_names] + [-1],
+                   dtype=np.int32)
     records = []
     for r in ds.records:
         new = lut[r.classes] if len(r.classes) else r.classes
@@ -52,14 +74,19 @@ def remap_classes(ds: DetectionDataset, class_names) -> DetectionDataset:
 
 def load_dataset(path: str | Path, format: str | None = None, class_names=None, *,
                  check_images: bool = True) -> DetectionDataset:
-    """Read a data set in ``format`` (``voc|yolo|coco|sim``; auto-detected when ``None``)."""
+    """Read a data set in ``format`` (``voc|yolo|coco|sim``; auto-detected when ``None``),
+    expressed in ``class_names`` when given (:func:`remap_classes`: by name, ignoring case,
+    through :data:`CLASS_ALIASES`; e.g. an aerial set's trucks and buses become ``car``)."""
     path = require_dir(path)
     fmt = (format or detect_format(path)).lower()
-    if fmt == "voc":
-        return read_voc(path, class_names, check_images=check_images)
-    if fmt == "yolo":
-        return read_yolo(path, class_names, check_images=check_images)
-    if fmt == "coco":
+    if fmt == "voc":  # by the annotations' own names, then remapped (aliases apply)
+        ds = read_voc(path, check_images=check_images)
+    elif fmt == "yolo":
+        # a folder's own classes.txt names its ids; the model's list only stands in for it
+        # when it has none
+        ds = read_yolo(path, None if has_yolo_class_list(path) else class_names,
+                       check_images=check_images)
+    elif fmt == "coco":
         ds = read_coco(path, check_images=check_images)
     elif fmt == "sim":
         ds = read_sim_targets(path, check_images=check_images)

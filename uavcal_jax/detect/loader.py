@@ -38,11 +38,16 @@ from uavcal_jax.detect.augment import (
     letterbox,
     mosaic4,
     random_affine,
+    random_crop,
     resize_long_side,
     scale_boxes,
+    to_gray,
 )
 from uavcal_jax.detect.config import DetectorConfig, TrainConfig
 from uavcal_jax.errors import DataError, DataRepairWarning
+
+#: Crop training keeps images at their stored resolution, up to this long side (pixels).
+MAX_SOURCE_SIDE = 2048
 
 
 class Batch(NamedTuple):
@@ -85,7 +90,9 @@ class DetectionLoader:
         max_targets: ``T_max``; default :func:`default_max_targets`. Extra boxes are dropped
             with one warning.
         drop_last: drop a short last batch (training) instead of padding it (evaluation).
-        cache: keep decoded images (resized to the input's long side) in memory.
+        cache: keep decoded images (resized to the input's long side; with
+            ``augment.crop_scale``, at their stored resolution up to :data:`MAX_SOURCE_SIDE`)
+            in memory.
         workers: threads decoding/augmenting; prefetch: batches prepared ahead.
         include_difficult: put ``difficult`` boxes into the targets too.
     """
@@ -104,6 +111,8 @@ class DetectionLoader:
         self.img_size = (int(img_size[0]), int(img_size[1]))
         self.batch_size = int(batch_size)
         self.augment = augment
+        #: multi-scale crops (``augment.crop_scale``): samples are ``img_size`` windows
+        self.crops = augment is not None and augment.crop_scale is not None
         self.shuffle = shuffle
         self.seed = int(seed)
         self.drop_last = drop_last and len(self.records) >= self.batch_size
@@ -138,7 +147,10 @@ class DetectionLoader:
             sx, sy = image.shape[1] / rec.width, image.shape[0] / rec.height
             boxes = boxes * np.array([sx, sy, sx, sy], np.float32)
         interp = cv2.INTER_LINEAR if self.augment else None
-        image, boxes, ratio = resize_long_side(image, boxes, max(self.img_size), interp)
+        long_side = max(self.img_size)
+        if self.crops:
+            long_side = min(max(image.shape[:2]), MAX_SOURCE_SIDE)
+        image, boxes, ratio = resize_long_side(image, boxes, long_side, interp)
         out = (image, boxes, rec.classes[keep].astype(np.int32), ratio)
         if self.cache:
             self._cache[index] = out
@@ -150,7 +162,14 @@ class DetectionLoader:
         H, W = self.img_size
         aug = self.augment
         rng = np.random.default_rng([self.seed, epoch, position])
-        if aug is not None and aug.mosaic > 0 and rng.random() < aug.mosaic:
+        if self.crops:
+            image, boxes, classes, _ = self.load(index)
+            image, boxes, classes = random_crop(
+                image, boxes, classes, rng, (H, W), scale=aug.crop_scale,
+                degrees=aug.degrees, rot90=aug.rot90, on_object=aug.crop_on_object, min_box_px=aug.min_box_px,
+                min_area_ratio=aug.min_area_ratio)
+            ratio, pad = float("nan"), (float("nan"), float("nan"))
+        elif aug is not None and aug.mosaic > 0 and rng.random() < aug.mosaic:
             others = rng.integers(0, len(self.records), 3)
             parts = [self.load(i)[:3] for i in (index, *others)]
             image, boxes, classes = mosaic4(parts, (H, W), rng)
@@ -174,6 +193,8 @@ class DetectionLoader:
             image = augment_hsv(image, rng, aug.hsv_h, aug.hsv_s, aug.hsv_v)
             if rng.random() < aug.fliplr:
                 image, boxes = hflip(image, boxes)
+            if aug.gray and rng.random() < aug.gray:  # no draw when off: old runs' samples
+                image = to_gray(image)
         return image, boxes, classes, ratio, pad
 
     # ------------------------------------------------------------------ batches

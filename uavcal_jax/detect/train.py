@@ -103,7 +103,9 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
     det_cfg = det_cfg.replace(num_classes=max(1, dataset.num_classes))
     det_cfg, cfg, train_set, val_set = _resolve(paths, dataset, det_cfg, cfg, resume,
                                                 val_dataset, log)
-    loader = DetectionLoader(train_set, det_cfg.img_size, cfg.batch_size, augment=cfg.augment,
+    crops = cfg.augment is not None and cfg.augment.crop_scale is not None
+    loader = DetectionLoader(train_set, cfg.augment.crop_size if crops else det_cfg.img_size,
+                             cfg.batch_size, augment=cfg.augment,
                              shuffle=True, seed=cfg.seed, drop_last=True, cache=cfg.cache,
                              workers=cfg.workers)
     steps_per_epoch = len(loader) if max_steps_per_epoch is None else min(
