@@ -47,13 +47,16 @@ examples:
 EVAL_EPILOG = """\
 Prints map50 (mAP@0.5) and map50_95 (mAP@0.5:0.95, COCO's 101-point interpolation, {n}
 detections per image; --voc07 for the 11-point VOC 2007 variant). Without --data the run's
-own validation split is used. Writes RUN/eval.json (the scores) and RUN/eval_config.json (the
-resolved prediction settings: the run's, --conf and --iou, then any --set).
+own validation split is used. Writes eval.json (the scores) and eval_config.json (the
+resolved prediction settings: the run's, --conf and --iou, then any --set) into --out; without
+--out into RUN, or, when RUN is inside the installed package (the shipped weights) or not
+writable, into ./{home}/<RUN's name> (said on stderr): never into the package.
 
 examples:
   uavcal detect eval runs/raccoon
   uavcal detect eval runs/raccoon --data other_voc_folder --json
   uavcal detect eval runs/raccoon --set multi_label=false
+  uavcal detect eval {shipped} --data my_yolo_folder --format yolo --out eval/mine
 
 --set keys (prediction settings):
 {keys}"""
@@ -73,7 +76,7 @@ examples:
 
 #: Images per call of `detect predict` (serving one image at a time by default).
 PREDICT_BATCH = 1
-#: Beside the results of `detect eval` (in RUN) and `detect predict` (in OUT): the resolved
+#: Beside the results of `detect eval` and `detect predict` (in their --out): the resolved
 #: :class:`~uavcal_jax.detect.config.PredictConfig`.
 EVAL_CONFIG, PREDICT_CONFIG = "eval_config.json", "predict_config.json"
 
@@ -100,7 +103,7 @@ def register(subparsers) -> None:
         TrainConfig,
     )
     from uavcal_jax.detect.options import add_train_options
-    from uavcal_jax.runs import KINDS
+    from uavcal_jax.runs import EVAL_HOME, KINDS
 
     description = DESCRIPTION.format(p=TrainConfig.paper())
     raw = argparse.RawDescriptionHelpFormatter
@@ -135,7 +138,8 @@ def register(subparsers) -> None:
     p = sub.add_parser("eval", help="mAP@0.5 and mAP@0.5:0.95 of a trained run",
                        description="Evaluate a trained run (its best checkpoint).",
                        epilog=EVAL_EPILOG.format(n=TrainConfig.map_max_dets,
-                                                 keys=_keys(PredictConfig)),
+                                                 keys=_keys(PredictConfig), home=EVAL_HOME,
+                                                 shipped=_shipped()),
                        formatter_class=raw)
     p.add_argument("run", metavar="RUN", help="a run folder written by `detect train`")
     p.add_argument("--data", metavar="DIR", default=None,
@@ -150,6 +154,9 @@ def register(subparsers) -> None:
     p.add_argument("--iou", type=float, default=EVAL_PREDICT.iou_thresh,
                    help="NMS IoU threshold [default: %(default)s]")
     p.add_argument("--voc07", action="store_true", help="VOC 2007 11-point interpolation")
+    p.add_argument("--out", metavar="DIR", default=None,
+                   help=f"write eval.json and eval_config.json here [default: RUN; ./{EVAL_HOME}/"
+                        "<RUN's name> when RUN is the shipped weights or not writable]")
     _add_set(p, "prediction settings")
     p.add_argument("--batch", type=positive_int, default=TrainConfig.batch_size,
                    help="[default: %(default)s]")
@@ -195,6 +202,26 @@ def _progress(enabled: bool):
         return progress(iterable, total=total, desc=desc, enabled=enabled, unit="batch")
 
     return wrap
+
+
+def _shipped() -> str:
+    """The shipped detector weights' folder, as a user types it in an example."""
+    from uavcal_jax.detect.default_weights import DEFAULT_DETECTOR_RUN
+
+    return str(DEFAULT_DETECTOR_RUN)
+
+
+def _results_folder(run: Path, out: str | None) -> Path:
+    """Where an evaluation of ``run`` writes (:func:`uavcal_jax.runs.results_folder`); a
+    redirection away from ``run`` is said on stderr."""
+    from uavcal_jax.runs import results_folder, results_redirect
+
+    folder = results_folder(run, out)
+    why = results_redirect(run) if out is None else None
+    if why is not None:
+        print(f"{run} {why}: writing the evaluation to {folder} (--out DIR chooses)",
+              file=sys.stderr, flush=True)
+    return folder
 
 
 def _require_run(run: str) -> Path:
@@ -271,11 +298,14 @@ def run_eval(args) -> int:
         raise DataError("no such data folder", args.data)
     enable_compilation_cache()
     interpolation = "voc07" if args.voc07 else "coco101"
+    folder = _results_folder(run, args.out)
     out = evaluate_run(run, args.data, args.format, which=args.checkpoint,
                        batch_size=args.batch, interpolation=interpolation,
-                       progress=_progress(not args.json), **dataclasses.asdict(predict_cfg))
-    out["config"] = str(write_config(run / EVAL_CONFIG, predict_cfg, checkpoint=args.checkpoint,
-                                     data=args.data, format=args.format, batch=args.batch,
+                       progress=_progress(not args.json), out_dir=folder,
+                       **dataclasses.asdict(predict_cfg))
+    out["config"] = str(write_config(folder / EVAL_CONFIG, predict_cfg,
+                                     checkpoint=args.checkpoint, data=args.data,
+                                     format=args.format, batch=args.batch,
                                      interpolation=interpolation))
     if args.json:
         print_json(out)

@@ -14,13 +14,19 @@ from uavcal_jax.detect.metrics import evaluate_predictions
 from uavcal_jax.detect.predict import make_predict_fn, predict_dataset
 from uavcal_jax.detect.run import load_run
 from uavcal_jax.errors import DataError
+from uavcal_jax.runs import results_folder
+
+#: The scores an evaluation writes into its results folder.
+EVAL_FILE = "eval.json"
 
 
 def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: str | None = None,
                  *, which: str = "best", batch_size: int | None = None,
                  interpolation: str = "coco101", progress: Callable | None = None,
-                 **predict_changes) -> dict:
-    """mAP@0.5 and mAP@0.5:0.95 of a run's checkpoint; also written to ``run/eval.json``.
+                 out_dir: str | Path | None = None, **predict_changes) -> dict:
+    """mAP@0.5 and mAP@0.5:0.95 of a run's checkpoint; also written to ``eval.json`` in
+    ``out_dir`` (default :func:`uavcal_jax.runs.results_folder` of ``run``: the run folder,
+    or ``./uavcal_eval/<run name>`` for the shipped weights; never into the package).
 
     Args:
         run: a run folder written by :func:`~uavcal_jax.detect.train.train`.
@@ -34,7 +40,8 @@ def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: s
             the run's ``TrainConfig.predict`` (e.g. ``conf_thresh``).
 
     Returns :meth:`~uavcal_jax.detect.metrics.MapResult.as_dict` plus where the images came
-    from, their number and boxes, the checkpoint's epoch and the wall time.
+    from, their number and boxes, the checkpoint's epoch and the wall time, and ``out``: the
+    ``eval.json`` written.
     """
     t0 = time.perf_counter()
     run = Path(run)
@@ -69,5 +76,7 @@ def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: s
     out.update(run=str(run), data=where, num_images=len(dataset), num_boxes=dataset.num_boxes,
                interpolation=interpolation, checkpoint_epoch=loaded.meta["epoch"],
                wall_s=round(time.perf_counter() - t0, 2))
-    (run / "eval.json").write_text(json.dumps(out, indent=1))
-    return out
+    folder = results_folder(run, out_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / EVAL_FILE).write_text(json.dumps(out, indent=1))
+    return {**out, "out": str(folder / EVAL_FILE)}
