@@ -149,3 +149,27 @@ def test_bad_settings_are_refused():
         TileConfig(overlap=1.0)
     with pytest.raises(ValueError, match="match_metric"):
         TileConfig(match_metric="giou")
+
+
+def test_the_run_configures_its_detector_with_tiles():
+    from pathlib import Path
+
+    from uavcal_jax.config import apply_overrides
+    from uavcal_jax.pipeline.detectors import NetworkDetector
+    from uavcal_jax.pipeline.run_config import RunConfig
+
+    assert RunConfig().detect.tile_config() is None  # default off
+    config = apply_overrides(RunConfig(), ["detect.tile=true", "detect.tile_overlap=0.3"])
+    tile = config.detect.tile_config()
+    assert tile == TileConfig(overlap=0.3)
+    with pytest.raises(ValueError, match="tile_overlap"):
+        apply_overrides(RunConfig(), ["detect.tile_overlap=1.5"])
+    image, truth, _ = scene(squares=SQUARES)
+    frames = [image, image[::-1].copy()]
+    for t in (None, tile):
+        detector = NetworkDetector(stub_predict, TILE, ("red", "white"), Path("stub"), tile=t)
+        got = detector(frames, [0, 1])
+        want = detect(stub_predict, frames, TILE, len(frames), t)
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a.boxes, b.boxes)
+    assert len(got[0].boxes) == len(truth)

@@ -48,9 +48,10 @@ EVAL_EPILOG = """\
 Prints map50 (mAP@0.5) and map50_95 (mAP@0.5:0.95, COCO's 101-point interpolation, {n}
 detections per image; --voc07 for the 11-point VOC 2007 variant). Without --data the run's
 own validation split is used. Writes eval.json (the scores) and eval_config.json (the
-resolved prediction settings: the run's, --conf and --iou, then any --set) into --out; without
---out into RUN, or, when RUN is inside the installed package (the shipped weights) or not
-writable, into ./{home}/<RUN's name> (said on stderr): never into the package.
+resolved prediction settings: the run's, --conf and --iou, then any --set; --tile's) into
+--out; without --out into RUN, or, when RUN is inside the installed package (the shipped
+weights) or not writable, into ./{home}/<RUN's name> (said on stderr): never into the
+package.
 
 examples:
   uavcal detect eval runs/raccoon
@@ -70,6 +71,7 @@ examples:
   uavcal detect predict photos/ --checkpoint runs/raccoon --out out/pred
   uavcal detect predict 'frames/*.png' --checkpoint runs/raccoon --out out/pred --conf 0.4
   uavcal detect predict photos/ --checkpoint runs/raccoon --out out/pred --set agnostic=true
+  uavcal detect predict aerial/ --checkpoint runs/raccoon --out out/pred --tile
 
 --set keys (prediction settings):
 {keys}"""
@@ -157,6 +159,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", metavar="DIR", default=None,
                    help=f"write eval.json and eval_config.json here [default: RUN; ./{EVAL_HOME}/"
                         "<RUN's name> when RUN is the shipped weights or not writable]")
+    _add_tile(p)
     _add_set(p, "prediction settings")
     p.add_argument("--batch", type=positive_int, default=TrainConfig.batch_size,
                    help="[default: %(default)s]")
@@ -181,6 +184,7 @@ def register(subparsers) -> None:
                    help="[default: %(default)s]")
     p.add_argument("--batch", type=positive_int, default=PREDICT_BATCH,
                    help="[default: %(default)s]")
+    _add_tile(p)
     _add_set(p, "prediction settings")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_predict)
@@ -222,6 +226,41 @@ def _results_folder(run: Path, out: str | None) -> Path:
         print(f"{run} {why}: writing the evaluation to {folder} (--out DIR chooses)",
               file=sys.stderr, flush=True)
     return folder
+
+
+def _add_tile(parser: argparse.ArgumentParser) -> None:
+    from uavcal_jax.detect.tile import TileConfig
+
+    parser.add_argument("--tile", action="store_true",
+                        help="sliced inference (SAHI): run the network on overlapping windows "
+                             "of each image at its own resolution, each of the network "
+                             "input's size, and on the whole image, and merge the boxes "
+                             "(class-wise NMS, intersection over the smaller box > "
+                             f"{TileConfig.match_thresh:g}): small objects in large images")
+    parser.add_argument("--tile-overlap", type=float, default=TileConfig.overlap, metavar="R",
+                        help="with --tile: the least overlap of neighbouring windows, a "
+                             "fraction of a window's side [default: %(default)s]")
+
+
+def _tile(args):
+    """The :class:`~uavcal_jax.detect.tile.TileConfig` of ``--tile`` (``None`` without);
+    a bad ``--tile-overlap`` is a DataError."""
+    from uavcal_jax.detect.tile import TileConfig
+
+    if not args.tile:
+        return None
+    try:
+        return TileConfig(overlap=args.tile_overlap)
+    except ValueError as err:
+        raise DataError(f"--tile-overlap: {err}") from None
+
+
+def _tile_extra(tile) -> dict:
+    """The ``tile`` entry of a written prediction config (none without tiling: the file is
+    what it was before tiling existed)."""
+    import dataclasses
+
+    return {} if tile is None else {"tile": dataclasses.asdict(tile)}
 
 
 def _require_run(run: str) -> Path:
@@ -296,17 +335,18 @@ def run_eval(args) -> int:
         conf_thresh=args.conf, iou_thresh=args.iou), args.set)
     if args.data is not None and not Path(args.data).exists():
         raise DataError("no such data folder", args.data)
+    tile = _tile(args)
     enable_compilation_cache()
     interpolation = "voc07" if args.voc07 else "coco101"
     folder = _results_folder(run, args.out)
     out = evaluate_run(run, args.data, args.format, which=args.checkpoint,
                        batch_size=args.batch, interpolation=interpolation,
-                       progress=_progress(not args.json), out_dir=folder,
+                       progress=_progress(not args.json), out_dir=folder, tile=tile,
                        **dataclasses.asdict(predict_cfg))
     out["config"] = str(write_config(folder / EVAL_CONFIG, predict_cfg,
                                      checkpoint=args.checkpoint, data=args.data,
                                      format=args.format, batch=args.batch,
-                                     interpolation=interpolation))
+                                     interpolation=interpolation, **_tile_extra(tile)))
     if args.json:
         print_json(out)
     else:
@@ -336,6 +376,7 @@ def run_predict(args) -> int:
     # the options, then --set
     predict_cfg = apply_overrides(SERVE_PREDICT.replace(
         conf_thresh=args.conf, iou_thresh=args.iou, max_det=args.max_det), args.set)
+    tile = _tile(args)
     paths = collect_images(args.images)
     enable_compilation_cache()
     t0 = time.perf_counter()
@@ -347,11 +388,13 @@ def run_predict(args) -> int:
         category_ids=loaded.data.get("category_ids") or None, batch_size=args.batch,
         info={"description": f"uavcal detect predict ({loaded.det_cfg.model})",
               "run": str(run), "conf_thresh": predict_cfg.conf_thresh,
-              "iou_thresh": predict_cfg.iou_thresh},
+              "iou_thresh": predict_cfg.iou_thresh, **_tile_extra(tile)},
         progress=lambda total: progress(total=total, desc="predict", enabled=not args.json,
-                                        unit="img"))
+                                        unit="img"),
+        tile=tile, max_det=predict_cfg.max_det)
     summary["config"] = str(write_config(Path(args.out) / PREDICT_CONFIG, predict_cfg,
-                                         checkpoint=str(run), batch=args.batch))
+                                         checkpoint=str(run), batch=args.batch,
+                                         **_tile_extra(tile)))
     summary["wall_s"] = round(time.perf_counter() - t0, 2)
     if args.json:
         print_json(summary)
