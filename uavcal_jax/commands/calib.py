@@ -317,10 +317,6 @@ def run_eval(args) -> int:
     cache: dict = {}
     trials = []
     folder = results_folder(args.run, args.out)
-    why = results_redirect(args.run) if args.out is None else None
-    if why is not None:
-        print(f"{args.run} {why}: writing the evaluation to {folder} (--out DIR chooses)",
-              file=sys.stderr, flush=True)
     for run_dir in trial_dirs(args.run):
         run = resolve_configs(args.set, preset=read_run_config(run_dir),
                               arguments={"loop.val_offsets": args.offsets})
@@ -336,6 +332,10 @@ def run_eval(args) -> int:
         config = write_config(trial_out / EVAL_CONFIG_FILE, run,
                               command=_inputs(args, "run", "data", "offsets", "out", "set"))
         trials.append({"run": str(run_dir), "config": str(config), **res})
+    why = results_redirect(args.run) if args.out is None else None
+    if why is not None:
+        print(f"{args.run} {why}: the evaluation went to {folder} (--out DIR chooses)",
+              file=sys.stderr, flush=True)
     rows = [{"val_loss": float(np.mean(t["loss"])),
              "val_offset_rmse": float(np.mean([m["offset_rmse"] for m in t["metrics"]])),
              "val_sign_f1": float(np.mean([m["sign_f1"] for m in t["metrics"]])),

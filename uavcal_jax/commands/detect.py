@@ -215,17 +215,15 @@ def _shipped() -> str:
     return str(DEFAULT_DETECTOR_RUN)
 
 
-def _results_folder(run: Path, out: str | None) -> Path:
-    """Where an evaluation of ``run`` writes (:func:`uavcal_jax.runs.results_folder`); a
-    redirection away from ``run`` is said on stderr."""
-    from uavcal_jax.runs import results_folder, results_redirect
+def _redirect_note(run: Path, out: str | None, folder: Path) -> None:
+    """Say on stderr when an evaluation of ``run`` went elsewhere than ``run`` without --out
+    (:func:`uavcal_jax.runs.results_redirect`)."""
+    from uavcal_jax.runs import results_redirect
 
-    folder = results_folder(run, out)
     why = results_redirect(run) if out is None else None
     if why is not None:
-        print(f"{run} {why}: writing the evaluation to {folder} (--out DIR chooses)",
+        print(f"{run} {why}: the evaluation went to {folder} (--out DIR chooses)",
               file=sys.stderr, flush=True)
-    return folder
 
 
 def _add_tile(parser: argparse.ArgumentParser) -> None:
@@ -328,6 +326,7 @@ def run_eval(args) -> int:
 
     from uavcal_jax.detect.evaluate import evaluate_run
     from uavcal_jax.detect.run import RunPaths, read_config
+    from uavcal_jax.runs import results_folder
 
     run = _require_run(args.run)
     # the run's validation settings, --conf and --iou, then --set
@@ -338,7 +337,7 @@ def run_eval(args) -> int:
     tile = _tile(args)
     enable_compilation_cache()
     interpolation = "voc07" if args.voc07 else "coco101"
-    folder = _results_folder(run, args.out)
+    folder = results_folder(run, args.out)
     out = evaluate_run(run, args.data, args.format, which=args.checkpoint,
                        batch_size=args.batch, interpolation=interpolation,
                        progress=_progress(not args.json), out_dir=folder, tile=tile,
@@ -347,6 +346,7 @@ def run_eval(args) -> int:
                                      checkpoint=args.checkpoint, data=args.data,
                                      format=args.format, batch=args.batch,
                                      interpolation=interpolation, **_tile_extra(tile)))
+    _redirect_note(run, args.out, folder)
     if args.json:
         print_json(out)
     else:
