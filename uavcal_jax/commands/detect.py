@@ -234,7 +234,9 @@ def _add_tile(parser: argparse.ArgumentParser) -> None:
                              "of each image at its own resolution, each of the network "
                              "input's size, and on the whole image, and merge the boxes "
                              "(class-wise NMS, intersection over the smaller box > "
-                             f"{TileConfig.match_thresh:g}): small objects in large images")
+                             f"{TileConfig.match_thresh:g}): small objects in large images; "
+                             f"windows go {TileConfig.batch_size} to a network call, one image "
+                             "at a time (--batch is for whole images)")
     parser.add_argument("--tile-overlap", type=float, default=TileConfig.overlap, metavar="R",
                         help="with --tile: the least overlap of neighbouring windows, a "
                              "fraction of a window's side [default: %(default)s]")
