@@ -16,7 +16,11 @@ candidates) and NMS keeps up to 300 boxes -- an upper bound on the cost of a tra
 Also reported: the classification YZNet's parameters and multiply-adds at 224x224 (paper:
 about 1.74 M and 5.9e7) and each detector's parameters and GFLOPs (2 x multiply-adds) at the
 input size. ``--dw-sweep`` times the depthwise-convolution implementations on the YZNet layer
-shapes first (the reason ``dw_impl="shift"`` is the default).
+shapes first (the reason ``dw_impl="shift"`` is the default). ``--frame`` also times the
+shipped detector as ``uavcal run`` calls it (:class:`uavcal_jax.pipeline.detectors.
+NetworkDetector`: letterbox, network, NMS, boxes back into the frame) on one 640x480 uint8
+frame, whole and sliced (``detect.tile``: windows of the network input plus the whole frame,
+one batch, merged): ``frame`` in the JSON.
 
 The machine's cores may be shared; the median of many runs is robust to short bursts, and
 ``ms_min`` shows the uncontended speed; ``cpu_ms_median`` is the process CPU time per call
@@ -60,7 +64,7 @@ import sys
 
 import jax
 import jax.numpy as jnp
-from _bench import time_calls, time_compile  # the script's folder is first on sys.path
+from _bench import time_calls, time_compile, time_once  # the script's folder is on sys.path
 from _docs import add_write_docs, write_docs
 
 from uavcal_jax.data.results_doc import markdown_table
@@ -117,6 +121,33 @@ def bench_model(model: str, args, image) -> dict:
     return res
 
 
+def bench_frame(runs: int) -> dict:
+    """The shipped detector's whole path on a 640x480 frame (a rendered-like random frame),
+    untiled and tiled (:class:`~uavcal_jax.detect.tile.TileConfig` defaults): ms per frame
+    (median, min), frames/s, the first call's seconds (the compile) and the windows."""
+    import numpy as np
+
+    from uavcal_jax.detect.tile import TileConfig, tile_windows
+    from uavcal_jax.pipeline.detectors import load_network_detector
+
+    frame = np.random.default_rng(0).integers(0, 256, (480, 640, 3), dtype=np.uint8)
+    out = {"frame_hw": [480, 640]}
+    for name, tile in (("whole", None), ("tiled", TileConfig())):
+        detector = load_network_detector(None, SERVE_PREDICT.conf_thresh, tile)
+        _, first_s = time_once(lambda d=detector: d([frame], [0]))
+        timed = time_calls(lambda d=detector: d([frame], [0]), repeats=runs, warmup=WARMUP)
+        out[name] = {"ms_median": round(1e3 * timed.median_s, 2),
+                     "ms_min": round(1e3 * timed.min_s, 2),
+                     "cpu_ms_median": round(1e3 * timed.cpu_median_s, 2),
+                     "fps": round(1.0 / timed.median_s, 2), "first_call_s": round(first_s, 2)}
+        if tile is not None:
+            out[name]["windows"] = len(tile_windows((480, 640), detector.img_size,
+                                                    tile.overlap))
+            out[name]["batch"] = tile.batch_size
+    out["img_size"] = list(detector.img_size)
+    return out
+
+
 def dw_sweep(runs: int) -> list[dict]:
     """Time depthwise implementations on the YZNet layer shapes at 640x480."""
     shapes = [(240, 320, 16, 3, 2), (120, 160, 72, 3, 2), (60, 80, 88, 3, 1),
@@ -154,6 +185,8 @@ def main(argv=None) -> int:
                         "dets")
     p.add_argument("--variables", help="trained variables (.msgpack) for the first model")
     p.add_argument("--dw-sweep", action="store_true")
+    p.add_argument("--frame", action="store_true",
+                   help="also time the shipped detector on a 640x480 frame, whole and tiled")
     p.add_argument("--seed", type=int, default=0)
     add_write_docs(p)
     args = p.parse_args(argv)
@@ -169,6 +202,13 @@ def main(argv=None) -> int:
     }
     if args.dw_sweep:
         summary["dw_sweep"] = dw_sweep(max(args.runs // 2, 5))
+    if args.frame:
+        summary["frame"] = bench_frame(args.runs)
+        f = summary["frame"]
+        print(f"shipped detector, 640x480 frame: whole {f['whole']['ms_median']:.1f} ms "
+              f"({f['whole']['fps']:.1f} fps), tiled ({f['tiled']['windows']} windows + the "
+              f"frame) {f['tiled']['ms_median']:.1f} ms ({f['tiled']['fps']:.1f} fps)",
+              file=sys.stderr, flush=True)
     cls = classifier_counts(20, 224)
     summary["params_classifier"] = cls["params"]
     summary["macs_classifier"] = cls["macs"]

@@ -427,3 +427,33 @@ def test_a_run_with_an_uncertainty_predicts_one(seqs, tmp_path, capsys):
     sigma = np.sqrt(np.exp(2 * log_sigma).mean(0) + pred.var(0))
     np.testing.assert_allclose(res["per_window"], pred.mean(0), atol=2e-5)
     np.testing.assert_allclose(res["sigma"], np.median(sigma, axis=0), rtol=1e-4)
+
+
+
+def test_eval_of_the_shipped_weights_never_writes_the_package(tmp_path, monkeypatch, capsys):
+    """Where ``calib eval`` writes (the model's evaluation stubbed: the shipped weights need
+    windows of 40 frames, and what is checked here is the folder written)."""
+    import uavcal_jax.calib.data as calib_data
+    import uavcal_jax.calib.loop as calib_loop
+
+    score = {"offset_rmse": 0.1}
+    monkeypatch.setattr(calib_data, "load_windows", lambda *a, **k: ["windows"])
+    monkeypatch.setattr(calib_loop, "restore_run", lambda *a, **k: (None, [0]))
+    monkeypatch.setattr(calib_loop, "evaluate", lambda *a, **k: {
+        "loss": [0.0], "metrics": [{**score, "sign_f1": 1.0}], "windows": 1, "offsets": [0],
+        "baseline_mean_offset": score, "baseline_window_mean": score})
+    shipped = default_weights()
+    before = {p: p.read_bytes() for p in sorted(shipped.rglob("*")) if p.is_file()}
+    out = tmp_path / "mine"
+    assert main(["calib", "eval", str(shipped), "--data", "seqs", "--out", str(out),
+                 "--json"]) == 0
+    ev = json.loads(capsys.readouterr().out)
+    assert ev["trials"][0]["config"] == str(out / "eval_config.json")
+    assert json.loads((out / "eval_config.json").read_text())["command"]["out"] == str(out)
+    # without --out: ./uavcal_eval/<the folder's name>, said on stderr
+    monkeypatch.chdir(tmp_path)
+    assert main(["calib", "eval", str(shipped), "--data", "seqs", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "package" in captured.err and f"uavcal_eval/{shipped.name}" in captured.err
+    assert (tmp_path / "uavcal_eval" / shipped.name / "eval_config.json").is_file()
+    assert {p: p.read_bytes() for p in sorted(shipped.rglob("*")) if p.is_file()} == before

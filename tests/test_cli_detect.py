@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -75,9 +76,11 @@ def test_parser_defaults_are_the_dataclass_defaults():
         TrainConfig,
     )
     from uavcal_jax.detect.options import TRAIN_FLAGS, train_options
+    from uavcal_jax.detect.tile import TileConfig
     from uavcal_jax.runs import KINDS
 
     paper = TrainConfig()
+    tile = {"tile": (False, None), "tile_overlap": (TileConfig.overlap, None)}
     # dest -> (default, choices); None choices: a free value
     expected = {
         # the other train options set config fields: test_train_options_set_their_fields
@@ -86,11 +89,12 @@ def test_parser_defaults_are_the_dataclass_defaults():
         "eval": {
             "format": (None, LABEL_FORMATS), "checkpoint": ("best", KINDS),
             "conf": (EVAL_PREDICT.conf_thresh, None), "iou": (EVAL_PREDICT.iou_thresh, None),
-            "batch": (paper.batch_size, None),
+            "batch": (paper.batch_size, None), **tile,
         },
         "predict": {
             "conf": (SERVE_PREDICT.conf_thresh, None), "iou": (SERVE_PREDICT.iou_thresh, None),
             "max_det": (SERVE_PREDICT.max_det, None), "batch": (PREDICT_BATCH, None),
+            **tile,
         },
     }
     # options with no configuration field behind them: paths, run control, output format
@@ -270,6 +274,7 @@ def test_eval_and_predict_write_their_resolved_config(tmp_path, monkeypatch, cap
     import uavcal_jax.detect.run as run_module
     from uavcal_jax.config import read_config
     from uavcal_jax.detect.config import DetectorConfig, PredictConfig
+    from uavcal_jax.detect.tile import TileConfig
 
     run = _fake_run(tmp_path / "run")
     seen = {}
@@ -289,9 +294,18 @@ def test_eval_and_predict_write_their_resolved_config(tmp_path, monkeypatch, cap
     assert resolved == PredictConfig(conf_thresh=0.2, iou_thresh=0.6, multi_label=False,
                                      max_det=50)
     assert PredictConfig(**{k: seen["eval"][k] for k in vars(resolved)}) == resolved
+    assert seen["eval"]["tile"] is None  # off by default
+    assert main(["detect", "eval", str(run), "--tile", "--tile-overlap", "0.3", "--out",
+                 str(tmp_path / "ev"), "--json"]) == 0
+    capsys.readouterr()
+    assert seen["eval"]["tile"] == TileConfig(overlap=0.3)
+    assert json.loads((tmp_path / "ev" / "eval_config.json").read_text())["tile"][
+        "overlap"] == 0.3
+    assert main(["detect", "eval", str(run), "--tile", "--tile-overlap", "1"]) == 2
+    assert "--tile-overlap" in capsys.readouterr().err
 
     def fake_annotate(predict_fn, paths, img_size, out_dir, class_names, **kwargs):
-        seen["info"] = kwargs["info"]
+        seen["info"], seen["tile"] = kwargs["info"], kwargs["tile"]
         return {"out": str(out_dir), "images": len(paths), "detections": 0}
 
     monkeypatch.setattr(run_module, "load_run", lambda run: SimpleNamespace(
@@ -309,3 +323,74 @@ def test_eval_and_predict_write_their_resolved_config(tmp_path, monkeypatch, cap
                            ignore=("checkpoint", "batch"))
     assert resolved == PredictConfig(conf_thresh=0.05, iou_thresh=0.3, agnostic=True)
     assert (seen["info"]["conf_thresh"], seen["info"]["iou_thresh"]) == (0.05, 0.3)
+    assert seen["tile"] is None
+    assert main(["detect", "predict", str(images), "--checkpoint", str(run), "--out", str(pred),
+                 "--tile", "--json"]) == 0
+    capsys.readouterr()
+    assert seen["tile"] == TileConfig()
+    assert json.loads((pred / "predict_config.json").read_text())["tile"] == vars(TileConfig())
+
+
+# ------------------------------------------------------- evaluations never write the package
+
+
+def _tree_bytes(root) -> dict:
+    """Every file under ``root`` by relative path, with its bytes."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file()}
+
+
+def make_yolo(root, n=2, size=(96, 128)):
+    """A YOLO folder whose classes.txt names car: n images, one grey box each."""
+    root.mkdir(parents=True)
+    (root / "classes.txt").write_text("car\n")
+    h, w = size
+    for i in range(n):
+        img = np.full((h, w, 3), 90, np.uint8)
+        cv2.rectangle(img, (20 + 10 * i, 30), (70 + 10 * i, 60), (200, 200, 200), -1)
+        cv2.imwrite(str(root / f"img{i}.png"), img)
+        cx, cy = (45.5 + 10 * i) / w, 45.5 / h
+        (root / f"img{i}.txt").write_text(f"0 {cx:.5f} {cy:.5f} {51 / w:.5f} {31 / h:.5f}\n")
+    return root
+
+
+def test_eval_of_the_shipped_weights_never_writes_the_package(tmp_path, monkeypatch, capsys):
+    from uavcal_jax.detect.default_weights import DEFAULT_DETECTOR_RUN
+
+    data = make_yolo(tmp_path / "yolo", n=1)
+    before = _tree_bytes(DEFAULT_DETECTOR_RUN)
+    out = tmp_path / "mine"
+    assert main(["detect", "eval", str(DEFAULT_DETECTOR_RUN), "--data", str(data), "--format",
+                 "yolo", "--out", str(out), "--batch", "1", "--json"]) == 0
+    ev = _json_line(capsys.readouterr().out)
+    assert ev["num_images"] == 1 and ev["out"] == str(out / "eval.json")
+    assert json.loads((out / "eval.json").read_text())["map50"] == ev["map50"]
+    assert (out / "eval_config.json").is_file() and ev["config"] == str(
+        out / "eval_config.json")
+    # without --out: a folder of the user's own in the current folder, said on stderr
+    monkeypatch.chdir(tmp_path)
+    assert main(["detect", "eval", str(DEFAULT_DETECTOR_RUN), "--data", str(data), "--format",
+                 "yolo", "--batch", "1", "--json"]) == 0
+    captured = capsys.readouterr()
+    home = tmp_path / "uavcal_eval" / "default"
+    assert "uavcal_eval/default" in captured.err and "package" in captured.err
+    assert {p.name for p in home.iterdir()} == {"eval.json", "eval_config.json"}
+    assert json.loads((home / "eval.json").read_text())["map50"] == ev["map50"]
+    assert _tree_bytes(DEFAULT_DETECTOR_RUN) == before
+
+
+def test_results_folder_rule(tmp_path, monkeypatch):
+    import uavcal_jax
+    from uavcal_jax.calib.pretrained import DEFAULT_WEIGHTS
+    from uavcal_jax.runs import EVAL_HOME, results_folder, results_redirect
+
+    mine = tmp_path / "run"
+    mine.mkdir()
+    assert results_redirect(mine) is None and results_folder(mine) == mine
+    assert results_folder(mine, tmp_path / "o") == tmp_path / "o"
+    for shipped in (DEFAULT_WEIGHTS, Path(uavcal_jax.__file__).parent / "detect"):
+        assert "package" in results_redirect(shipped)
+        assert results_folder(shipped) == EVAL_HOME / shipped.name
+    monkeypatch.setattr("os.access", lambda path, mode: False)  # read-only, as for a CD
+    assert "not writable" in results_redirect(mine)
+    assert results_folder(mine) == EVAL_HOME / "run"

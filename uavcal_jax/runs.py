@@ -32,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import shutil
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -49,8 +50,9 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.progress import progress as progress_bar
 
 __all__ = ["CONFIG_FILE", "FORMAT_VERSION", "KINDS", "METRICS_FILE", "Best", "Checkpoints",
-           "Loop", "RunResult", "RunSpec", "Selection", "config_differences", "read_metrics",
-           "train_epochs", "write_folder"]
+           "EVAL_HOME", "Loop", "RunResult", "RunSpec", "Selection", "config_differences",
+           "read_metrics", "results_folder", "results_redirect", "train_epochs",
+           "write_folder"]
 
 #: A run folder's configuration.
 CONFIG_FILE = "config.json"
@@ -60,6 +62,39 @@ METRICS_FILE = "metrics.jsonl"
 FORMAT_VERSION = 2
 #: The two checkpoint series of a run (the first is what inference reads by default).
 KINDS = ("best", "last")
+#: Where the evaluation of a run that must not be written into goes, relative to the current
+#: folder: ``uavcal_eval/<run name>`` (see :func:`results_folder`).
+EVAL_HOME = Path("uavcal_eval")
+#: The installed package: the weights shipped in it are read, never written.
+_PACKAGE = Path(__file__).resolve().parent
+
+
+# ------------------------------------------------------------------------ results folder
+
+def results_redirect(run: str | Path) -> str | None:
+    """Why the results of evaluating ``run`` must not go into ``run`` (``None``: they may).
+
+    Not into a folder inside the installed ``uavcal_jax`` package (the shipped weights: in
+    site-packages after ``pip install .``, and one user's evaluation must not change what every
+    user reads as the weights' scores), nor into a folder that is not writable.
+    """
+    run = Path(run).resolve()
+    if run == _PACKAGE or _PACKAGE in run.parents:
+        return "is inside the installed uavcal_jax package (shipped weights)"
+    if not os.access(run, os.W_OK):
+        return "is not writable"
+    return None
+
+
+def results_folder(run: str | Path, out: str | Path | None = None) -> Path:
+    """The folder the results of evaluating ``run`` go to: ``out`` when given; else ``run``
+    itself, unless :func:`results_redirect` says no: then ``EVAL_HOME/<run name>`` in the
+    current folder. The folder is not created here."""
+    if out is not None:
+        return Path(out)
+    if results_redirect(run) is None:
+        return Path(run)
+    return EVAL_HOME / Path(run).resolve().name
 
 
 # ----------------------------------------------------------------------------- checkpoints

@@ -4,13 +4,15 @@ Every option's default and choices come from the configuration dataclasses (the 
 :class:`uavcal_jax.calib.config.CalibRunConfig`); ``--set`` reaches every field of it, in
 ``train``, ``eval`` and ``predict``. Each writes the configuration it ran with beside its
 results, with its other inputs under ``"command"``: ``RUN/config.json`` (train),
-``RUN/eval_config.json`` (eval, in each evaluated folder), ``OUT.config.json`` beside
+``eval_config.json`` (eval, in each evaluated folder, or under ``--out``; never into the
+package's shipped weights, :func:`uavcal_jax.runs.results_folder`), ``OUT.config.json`` beside
 ``predict --out``.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import warnings
 from pathlib import Path
 
@@ -106,7 +108,7 @@ def register(subparsers) -> None:
     )
     from uavcal_jax.calib.presets import PRESETS
     from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD, method_names
-    from uavcal_jax.runs import KINDS
+    from uavcal_jax.runs import EVAL_HOME, KINDS
 
     raw = argparse.RawDescriptionHelpFormatter
     parser = subparsers.add_parser("calib", help="train and evaluate the IMU self-calibrator",
@@ -158,6 +160,10 @@ def register(subparsers) -> None:
                    help="evaluate once per offset, K offsets drawn by the run's injection "
                         "protocol, each shared by every window, loop.val_offsets [default: the "
                         "run's]")
+    p.add_argument("--out", metavar="DIR", default=None,
+                   help="write eval_config.json here (a loo/kfold run's under DIR/trial_NN) "
+                        f"[default: RUN; ./{EVAL_HOME}/<RUN's name> when RUN is the shipped "
+                        "weights or not writable]")
     _add_set(p, "the run's configuration (what a restored model may change: run control, "
                 "batch size, window stride; see calib.loop.INFERENCE_KEYS)")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
@@ -305,10 +311,12 @@ def run_eval(args) -> int:
     from uavcal_jax.calib.presets import resolve_configs
     from uavcal_jax.calib.trials import trial_dirs, validation_windows
     from uavcal_jax.config import write_config
+    from uavcal_jax.runs import results_folder, results_redirect
 
     enable_compilation_cache()
     cache: dict = {}
     trials = []
+    folder = results_folder(args.run, args.out)
     for run_dir in trial_dirs(args.run):
         run = resolve_configs(args.set, preset=read_run_config(run_dir),
                               arguments={"loop.val_offsets": args.offsets})
@@ -319,9 +327,15 @@ def run_eval(args) -> int:
             raise DataError("no validation windows to evaluate on: give --data", run_dir)
         state, seeds = restore_run(run_dir, parts, run=run)
         res = evaluate(state, parts, seeds, draws=run.loop.val_offsets, show=not args.json)
-        write_config(run_dir / EVAL_CONFIG_FILE, run,
-                     command=_inputs(args, "run", "data", "offsets", "set"))
-        trials.append({"run": str(run_dir), **res})
+        # a trial's results go to the same place under the results folder as it is in RUN
+        trial_out = folder / run_dir.relative_to(args.run)
+        config = write_config(trial_out / EVAL_CONFIG_FILE, run,
+                              command=_inputs(args, "run", "data", "offsets", "out", "set"))
+        trials.append({"run": str(run_dir), "config": str(config), **res})
+    why = results_redirect(args.run) if args.out is None else None
+    if why is not None:
+        print(f"{args.run} {why}: the evaluation went to {folder} (--out DIR chooses)",
+              file=sys.stderr, flush=True)
     rows = [{"val_loss": float(np.mean(t["loss"])),
              "val_offset_rmse": float(np.mean([m["offset_rmse"] for m in t["metrics"]])),
              "val_sign_f1": float(np.mean([m["sign_f1"] for m in t["metrics"]])),

@@ -47,13 +47,17 @@ examples:
 EVAL_EPILOG = """\
 Prints map50 (mAP@0.5) and map50_95 (mAP@0.5:0.95, COCO's 101-point interpolation, {n}
 detections per image; --voc07 for the 11-point VOC 2007 variant). Without --data the run's
-own validation split is used. Writes RUN/eval.json (the scores) and RUN/eval_config.json (the
-resolved prediction settings: the run's, --conf and --iou, then any --set).
+own validation split is used. Writes eval.json (the scores) and eval_config.json (the
+resolved prediction settings: the run's, --conf and --iou, then any --set; --tile's) into
+--out; without --out into RUN, or, when RUN is inside the installed package (the shipped
+weights) or not writable, into ./{home}/<RUN's name> (said on stderr): never into the
+package.
 
 examples:
   uavcal detect eval runs/raccoon
   uavcal detect eval runs/raccoon --data other_voc_folder --json
   uavcal detect eval runs/raccoon --set multi_label=false
+  uavcal detect eval {shipped} --data my_yolo_folder --format yolo --out eval/mine
 
 --set keys (prediction settings):
 {keys}"""
@@ -67,13 +71,14 @@ examples:
   uavcal detect predict photos/ --checkpoint runs/raccoon --out out/pred
   uavcal detect predict 'frames/*.png' --checkpoint runs/raccoon --out out/pred --conf 0.4
   uavcal detect predict photos/ --checkpoint runs/raccoon --out out/pred --set agnostic=true
+  uavcal detect predict aerial/ --checkpoint runs/raccoon --out out/pred --tile
 
 --set keys (prediction settings):
 {keys}"""
 
 #: Images per call of `detect predict` (serving one image at a time by default).
 PREDICT_BATCH = 1
-#: Beside the results of `detect eval` (in RUN) and `detect predict` (in OUT): the resolved
+#: Beside the results of `detect eval` and `detect predict` (in their --out): the resolved
 #: :class:`~uavcal_jax.detect.config.PredictConfig`.
 EVAL_CONFIG, PREDICT_CONFIG = "eval_config.json", "predict_config.json"
 
@@ -100,7 +105,7 @@ def register(subparsers) -> None:
         TrainConfig,
     )
     from uavcal_jax.detect.options import add_train_options
-    from uavcal_jax.runs import KINDS
+    from uavcal_jax.runs import EVAL_HOME, KINDS
 
     description = DESCRIPTION.format(p=TrainConfig.paper())
     raw = argparse.RawDescriptionHelpFormatter
@@ -135,7 +140,8 @@ def register(subparsers) -> None:
     p = sub.add_parser("eval", help="mAP@0.5 and mAP@0.5:0.95 of a trained run",
                        description="Evaluate a trained run (its best checkpoint).",
                        epilog=EVAL_EPILOG.format(n=TrainConfig.map_max_dets,
-                                                 keys=_keys(PredictConfig)),
+                                                 keys=_keys(PredictConfig), home=EVAL_HOME,
+                                                 shipped=_shipped()),
                        formatter_class=raw)
     p.add_argument("run", metavar="RUN", help="a run folder written by `detect train`")
     p.add_argument("--data", metavar="DIR", default=None,
@@ -150,6 +156,10 @@ def register(subparsers) -> None:
     p.add_argument("--iou", type=float, default=EVAL_PREDICT.iou_thresh,
                    help="NMS IoU threshold [default: %(default)s]")
     p.add_argument("--voc07", action="store_true", help="VOC 2007 11-point interpolation")
+    p.add_argument("--out", metavar="DIR", default=None,
+                   help=f"write eval.json and eval_config.json here [default: RUN; ./{EVAL_HOME}/"
+                        "<RUN's name> when RUN is the shipped weights or not writable]")
+    _add_tile(p)
     _add_set(p, "prediction settings")
     p.add_argument("--batch", type=positive_int, default=TrainConfig.batch_size,
                    help="[default: %(default)s]")
@@ -174,6 +184,7 @@ def register(subparsers) -> None:
                    help="[default: %(default)s]")
     p.add_argument("--batch", type=positive_int, default=PREDICT_BATCH,
                    help="[default: %(default)s]")
+    _add_tile(p)
     _add_set(p, "prediction settings")
     p.add_argument("--json", action="store_true", help="print a JSON summary, no progress bars")
     p.set_defaults(func=run_predict)
@@ -195,6 +206,61 @@ def _progress(enabled: bool):
         return progress(iterable, total=total, desc=desc, enabled=enabled, unit="batch")
 
     return wrap
+
+
+def _shipped() -> str:
+    """The shipped detector weights' folder, as a user types it in an example."""
+    from uavcal_jax.detect.default_weights import DEFAULT_DETECTOR_RUN
+
+    return str(DEFAULT_DETECTOR_RUN)
+
+
+def _redirect_note(run: Path, out: str | None, folder: Path) -> None:
+    """Say on stderr when an evaluation of ``run`` went elsewhere than ``run`` without --out
+    (:func:`uavcal_jax.runs.results_redirect`)."""
+    from uavcal_jax.runs import results_redirect
+
+    why = results_redirect(run) if out is None else None
+    if why is not None:
+        print(f"{run} {why}: the evaluation went to {folder} (--out DIR chooses)",
+              file=sys.stderr, flush=True)
+
+
+def _add_tile(parser: argparse.ArgumentParser) -> None:
+    from uavcal_jax.detect.tile import TileConfig
+
+    parser.add_argument("--tile", action="store_true",
+                        help="sliced inference (SAHI): run the network on overlapping windows "
+                             "of each image at its own resolution, each of the network "
+                             "input's size, and on the whole image, and merge the boxes "
+                             "(class-wise NMS, intersection over the smaller box > "
+                             f"{TileConfig.match_thresh:g}): small objects in large images; "
+                             f"windows go {TileConfig.batch_size} to a network call, one image "
+                             "at a time (--batch is for whole images)")
+    parser.add_argument("--tile-overlap", type=float, default=TileConfig.overlap, metavar="R",
+                        help="with --tile: the least overlap of neighbouring windows, a "
+                             "fraction of a window's side [default: %(default)s]")
+
+
+def _tile(args):
+    """The :class:`~uavcal_jax.detect.tile.TileConfig` of ``--tile`` (``None`` without);
+    a bad ``--tile-overlap`` is a DataError."""
+    from uavcal_jax.detect.tile import TileConfig
+
+    if not args.tile:
+        return None
+    try:
+        return TileConfig(overlap=args.tile_overlap)
+    except ValueError as err:
+        raise DataError(f"--tile-overlap: {err}") from None
+
+
+def _tile_extra(tile) -> dict:
+    """The ``tile`` entry of a written prediction config (none without tiling: the file is
+    what it was before tiling existed)."""
+    import dataclasses
+
+    return {} if tile is None else {"tile": dataclasses.asdict(tile)}
 
 
 def _require_run(run: str) -> Path:
@@ -262,6 +328,7 @@ def run_eval(args) -> int:
 
     from uavcal_jax.detect.evaluate import evaluate_run
     from uavcal_jax.detect.run import RunPaths, read_config
+    from uavcal_jax.runs import results_folder
 
     run = _require_run(args.run)
     # the run's validation settings, --conf and --iou, then --set
@@ -269,14 +336,19 @@ def run_eval(args) -> int:
         conf_thresh=args.conf, iou_thresh=args.iou), args.set)
     if args.data is not None and not Path(args.data).exists():
         raise DataError("no such data folder", args.data)
+    tile = _tile(args)
     enable_compilation_cache()
     interpolation = "voc07" if args.voc07 else "coco101"
+    folder = results_folder(run, args.out)
     out = evaluate_run(run, args.data, args.format, which=args.checkpoint,
                        batch_size=args.batch, interpolation=interpolation,
-                       progress=_progress(not args.json), **dataclasses.asdict(predict_cfg))
-    out["config"] = str(write_config(run / EVAL_CONFIG, predict_cfg, checkpoint=args.checkpoint,
-                                     data=args.data, format=args.format, batch=args.batch,
-                                     interpolation=interpolation))
+                       progress=_progress(not args.json), out_dir=folder, tile=tile,
+                       **dataclasses.asdict(predict_cfg))
+    out["config"] = str(write_config(folder / EVAL_CONFIG, predict_cfg,
+                                     checkpoint=args.checkpoint, data=args.data,
+                                     format=args.format, batch=args.batch,
+                                     interpolation=interpolation, **_tile_extra(tile)))
+    _redirect_note(run, args.out, folder)
     if args.json:
         print_json(out)
     else:
@@ -306,6 +378,7 @@ def run_predict(args) -> int:
     # the options, then --set
     predict_cfg = apply_overrides(SERVE_PREDICT.replace(
         conf_thresh=args.conf, iou_thresh=args.iou, max_det=args.max_det), args.set)
+    tile = _tile(args)
     paths = collect_images(args.images)
     enable_compilation_cache()
     t0 = time.perf_counter()
@@ -317,11 +390,13 @@ def run_predict(args) -> int:
         category_ids=loaded.data.get("category_ids") or None, batch_size=args.batch,
         info={"description": f"uavcal detect predict ({loaded.det_cfg.model})",
               "run": str(run), "conf_thresh": predict_cfg.conf_thresh,
-              "iou_thresh": predict_cfg.iou_thresh},
+              "iou_thresh": predict_cfg.iou_thresh, **_tile_extra(tile)},
         progress=lambda total: progress(total=total, desc="predict", enabled=not args.json,
-                                        unit="img"))
+                                        unit="img"),
+        tile=tile, max_det=predict_cfg.max_det)
     summary["config"] = str(write_config(Path(args.out) / PREDICT_CONFIG, predict_cfg,
-                                         checkpoint=str(run), batch=args.batch))
+                                         checkpoint=str(run), batch=args.batch,
+                                         **_tile_extra(tile)))
     summary["wall_s"] = round(time.perf_counter() - t0, 2)
     if args.json:
         print_json(summary)

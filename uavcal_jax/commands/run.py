@@ -93,7 +93,8 @@ def _detector(args, config, sequence):
     from uavcal_jax.pipeline.detectors import LabelDetector, load_network_detector
 
     if args.detector != LABELS:
-        return load_network_detector(args.detector, config.detect.detector_threshold())
+        return load_network_detector(args.detector, config.detect.detector_threshold(),
+                                     config.detect.tile_config())
     if sequence.targets is None:
         raise DataError("--detector labels needs target labels (mav0/target0), and the "
                         "recording has none", args.sequence)

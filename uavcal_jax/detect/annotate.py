@@ -20,7 +20,9 @@ import cv2
 import numpy as np
 
 from uavcal_jax.data.detection_records import IMREAD_FLAGS
-from uavcal_jax.detect.predict import ImageDetections, detect_images
+from uavcal_jax.detect.config import SERVE_PREDICT
+from uavcal_jax.detect.predict import ImageDetections
+from uavcal_jax.detect.tile import TileConfig, detect
 from uavcal_jax.errors import DataError, DataRepairWarning
 
 
@@ -91,7 +93,9 @@ def draw_detections(image_bgr: np.ndarray, det: ImageDetections,
 def annotate_files(predict_fn: Callable, paths: Sequence[Path], img_size: tuple[int, int],
                    out_dir: str | Path, class_names: Sequence[str], *,
                    category_ids: Sequence[int] | None = None, batch_size: int = 1,
-                   info: dict | None = None, progress: Callable | None = None) -> dict:
+                   info: dict | None = None, progress: Callable | None = None,
+                   tile: TileConfig | None = None, max_det: int = SERVE_PREDICT.max_det
+                   ) -> dict:
     """Detect objects in image files; write each image with its boxes drawn and
     ``out_dir/detections.json`` (:func:`write_coco_detections`).
 
@@ -101,7 +105,9 @@ def annotate_files(predict_fn: Callable, paths: Sequence[Path], img_size: tuple[
         paths: the image files; each is written to ``out_dir`` under its path relative to the
             files' common folder.
         img_size: the network input ``(H, W)``.
-        batch_size: images per predict call.
+        batch_size: images per predict call (without ``tile``).
+        tile: sliced inference (:func:`uavcal_jax.detect.tile.detect_tiled`, keeping
+            ``max_det`` boxes an image), ``None`` for none.
         progress: ``progress(total) -> bar`` with ``update(n)`` and ``close()`` (e.g. tqdm).
 
     Unreadable images are skipped with one :class:`~uavcal_jax.errors.DataRepairWarning`;
@@ -118,8 +124,8 @@ def annotate_files(predict_fn: Callable, paths: Sequence[Path], img_size: tuple[
         read = [(path, cv2.imread(str(path), IMREAD_FLAGS)) for path in chunk]
         unreadable += [str(path) for path, img in read if img is None]
         read = [(path, img) for path, img in read if img is not None]
-        found = detect_images(predict_fn, [cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-                                           for _, img in read], img_size, batch_size)
+        found = detect(predict_fn, [cv2.cvtColor(img, cv2.COLOR_BGR2RGB) for _, img in read],
+                       img_size, batch_size, tile, max_det)
         for (path, img), det in zip(read, found, strict=True):
             rel = path.relative_to(common_root)
             target = out_dir / rel

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import time
@@ -9,18 +10,26 @@ from collections.abc import Callable
 from pathlib import Path
 
 from uavcal_jax.detect.datasets import load_dataset
-from uavcal_jax.detect.loader import DetectionLoader
+from uavcal_jax.detect.loader import DetectionLoader, read_image_rgb
 from uavcal_jax.detect.metrics import evaluate_predictions
 from uavcal_jax.detect.predict import make_predict_fn, predict_dataset
 from uavcal_jax.detect.run import load_run
+from uavcal_jax.detect.tile import TileConfig, detect_tiled
 from uavcal_jax.errors import DataError
+from uavcal_jax.runs import results_folder
+
+#: The scores an evaluation writes into its results folder.
+EVAL_FILE = "eval.json"
 
 
 def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: str | None = None,
                  *, which: str = "best", batch_size: int | None = None,
                  interpolation: str = "coco101", progress: Callable | None = None,
+                 out_dir: str | Path | None = None, tile: TileConfig | None = None,
                  **predict_changes) -> dict:
-    """mAP@0.5 and mAP@0.5:0.95 of a run's checkpoint; also written to ``run/eval.json``.
+    """mAP@0.5 and mAP@0.5:0.95 of a run's checkpoint; also written to ``eval.json`` in
+    ``out_dir`` (default :func:`uavcal_jax.runs.results_folder` of ``run``: the run folder,
+    or ``./uavcal_eval/<run name>`` for the shipped weights; never into the package).
 
     Args:
         run: a run folder written by :func:`~uavcal_jax.detect.train.train`.
@@ -29,12 +38,16 @@ def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: s
         which: ``"best"`` or ``"last"`` checkpoint.
         batch_size: default the run's training batch size.
         interpolation: ``"coco101"`` or ``"voc07"``.
-        progress: ``progress(iterable, total=...)`` wrapper of the batches.
+        progress: ``progress(iterable, total=...)`` wrapper of the batches (of the images
+            with ``tile``).
+        tile: sliced inference (:func:`uavcal_jax.detect.tile.detect_tiled`, one image at a
+            time, its windows in batches of ``tile.batch_size``), ``None`` for none.
         predict_changes: :class:`~uavcal_jax.detect.config.PredictConfig` fields replaced in
             the run's ``TrainConfig.predict`` (e.g. ``conf_thresh``).
 
     Returns :meth:`~uavcal_jax.detect.metrics.MapResult.as_dict` plus where the images came
-    from, their number and boxes, the checkpoint's epoch and the wall time.
+    from, their number and boxes, the checkpoint's epoch and the wall time, and ``out``: the
+    ``eval.json`` written.
     """
     t0 = time.perf_counter()
     run = Path(run)
@@ -55,19 +68,31 @@ def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: s
     if not len(dataset):
         raise DataError("no images to evaluate", data or loaded.data["root"])
     det_cfg, train_cfg = loaded.det_cfg, loaded.train_cfg
-    loader = DetectionLoader(dataset, det_cfg.img_size, batch_size or train_cfg.batch_size,
-                             include_difficult=True, cache=False)
     predict_cfg = train_cfg.predict.replace(**predict_changes)
     predict_fn = functools.partial(make_predict_fn(det_cfg, predict_cfg), loaded.variables)
-    try:
-        dets = predict_dataset(predict_fn, loader, progress=progress)
-    finally:
-        loader.close()
+    if tile is None:
+        loader = DetectionLoader(dataset, det_cfg.img_size,
+                                 batch_size or train_cfg.batch_size, include_difficult=True,
+                                 cache=False)
+        try:
+            dets = predict_dataset(predict_fn, loader, progress=progress)
+        finally:
+            loader.close()
+    else:
+        records = dataset.records
+        dets = [detect_tiled(predict_fn, [read_image_rgb(r.image_path)], det_cfg.img_size,
+                             tile, predict_cfg.max_det)[0]
+                for r in (records if progress is None else progress(records,
+                                                                   total=len(records)))]
     result = evaluate_predictions(dataset.records, dets, det_cfg.num_classes,
                                   train_cfg.map_max_dets, interpolation)
     out = result.as_dict(class_names)
     out.update(run=str(run), data=where, num_images=len(dataset), num_boxes=dataset.num_boxes,
                interpolation=interpolation, checkpoint_epoch=loaded.meta["epoch"],
                wall_s=round(time.perf_counter() - t0, 2))
-    (run / "eval.json").write_text(json.dumps(out, indent=1))
-    return out
+    if tile is not None:
+        out["tile"] = dataclasses.asdict(tile)
+    folder = results_folder(run, out_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / EVAL_FILE).write_text(json.dumps(out, indent=1))
+    return {**out, "out": str(folder / EVAL_FILE)}

@@ -26,8 +26,10 @@ from typing import Protocol
 import numpy as np
 
 from uavcal_jax.data.targets import TargetLabels
+from uavcal_jax.detect.config import SERVE_PREDICT
 from uavcal_jax.detect.default_weights import default_detector_run
 from uavcal_jax.detect.predict import ImageDetections
+from uavcal_jax.detect.tile import TileConfig, detect
 from uavcal_jax.errors import DataError
 
 __all__ = ["Detector", "LabelDetector", "NetworkDetector", "load_network_detector"]
@@ -51,27 +53,30 @@ def _empty() -> ImageDetections:
 class NetworkDetector:
     """A trained detector: ``predict_fn(images) -> Detections`` bound to its weights, run on
     letterboxed images of size ``img_size`` (H, W) (:func:`uavcal_jax.detect.predict.
-    detect_images`)."""
+    detect_images`), or on windows of them when ``tile`` is given
+    (:func:`uavcal_jax.detect.tile.detect_tiled`, at most ``max_det`` boxes a frame)."""
 
     predict_fn: Callable
     img_size: tuple[int, int]
     class_names: tuple[str, ...]
     source: Path
     needs_images: bool = True
+    tile: TileConfig | None = None
+    max_det: int = SERVE_PREDICT.max_det
 
     def __call__(self, images, t_ns) -> list[ImageDetections]:
-        from uavcal_jax.detect.predict import detect_images
-
-        return detect_images(self.predict_fn, list(images), self.img_size,
-                             batch_size=len(images))
+        return detect(self.predict_fn, list(images), self.img_size, batch_size=len(images),
+                      tile=self.tile, max_det=self.max_det)
 
 
-def load_network_detector(run: str | Path | None, score_threshold: float) -> NetworkDetector:
+def load_network_detector(run: str | Path | None, score_threshold: float,
+                          tile: TileConfig | None = None) -> NetworkDetector:
     """The detector of a ``uavcal detect train`` run folder ``run`` (its best weights), or
     the shipped one (:func:`uavcal_jax.detect.default_weights.default_detector_run`) when
     ``run`` is ``None``; detections below ``score_threshold`` are dropped (the serving NMS
     settings otherwise; ``uavcal run`` passes
-    :meth:`~uavcal_jax.pipeline.run_config.DetectStageConfig.detector_threshold`).
+    :meth:`~uavcal_jax.pipeline.run_config.DetectStageConfig.detector_threshold`); ``tile``:
+    sliced inference (``DetectStageConfig.tile_config``), ``None`` for none.
 
     Raises:
         DataError: the folder is missing or is not a training run with a best checkpoint (the
@@ -83,7 +88,6 @@ def load_network_detector(run: str | Path | None, score_threshold: float) -> Net
         what = "no such run folder" if not path.exists() else (
             "not a detector training run (needs config.json and checkpoints/best)")
         raise DataError(what, path)
-    from uavcal_jax.detect.config import SERVE_PREDICT
     from uavcal_jax.detect.predict import make_predict_fn
     from uavcal_jax.detect.run import load_run
 
@@ -99,7 +103,8 @@ def load_network_detector(run: str | Path | None, score_threshold: float) -> Net
     names = tuple(loaded.data.get("class_names") or ())
     if not names:
         raise DataError("the run's config.json names no classes", path / "config.json")
-    return NetworkDetector(fn, tuple(loaded.det_cfg.img_size), names, path)
+    return NetworkDetector(fn, tuple(loaded.det_cfg.img_size), names, path, tile=tile,
+                           max_det=predict_cfg.max_det)
 
 
 class LabelDetector:

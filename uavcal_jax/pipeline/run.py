@@ -257,7 +257,8 @@ def _checked(recording: Path, read: tuple[Sequence, str] | None) -> tuple[Sequen
 def _checked_detector(detector: Detector | None, config: RunConfig) -> Detector:
     """``detector`` (``None``: the shipped weights), which knows the class to follow."""
     if detector is None:
-        detector = load_network_detector(None, config.detect.detector_threshold())
+        detector = load_network_detector(None, config.detect.detector_threshold(),
+                                         config.detect.tile_config())
     if config.detect.follow_class not in detector.class_names:
         raise DataError(f"detect.follow_class={config.detect.follow_class!r} is not a class "
                         f"of the detector (its classes: {', '.join(detector.class_names)})")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from uavcal_jax.detect.tile import TileConfig
 from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD, configure_method, method_names
 from uavcal_jax.pipeline.self_calib import SelfCalibOptions
 from uavcal_jax.pipeline.transformer_offset import TransformerSettings
@@ -126,6 +127,13 @@ class DetectStageConfig:
             static scene (:meth:`~uavcal_jax.vio.frontend.FeatureTracker.track`'s
             ``exclude``). The VIO then waits for each frame's detections; the detector runs
             ahead of it on the other core.
+        tile: sliced inference (:mod:`uavcal_jax.detect.tile`, SAHI): the network runs on
+            overlapping windows of the frame at its own resolution, each of the network
+            input's size, and on the whole frame, the boxes merged; for small targets in a
+            large frame, at several network calls a frame (a 640x480 frame at the shipped
+            256x384 input: six windows and the frame, in one batch of eight). Off: the frame
+            is letterboxed whole into the input, one call.
+        tile_overlap: the least overlap of neighbouring windows, a fraction of a window's side.
     """
 
     every: int = 1
@@ -136,8 +144,12 @@ class DetectStageConfig:
     border_px: float = 1.0
     locate_cut: bool = True
     mask_vio: bool = True
+    tile: bool = False
+    tile_overlap: float = TileConfig.overlap
 
     def __post_init__(self):
+        if not 0.0 <= self.tile_overlap < 1.0:
+            raise ValueError(f"detect.tile_overlap must be in [0, 1), got {self.tile_overlap}")
         if self.every < 1:
             raise ValueError(f"detect.every must be >= 1, got {self.every}")
         for name in ("score_threshold", "mask_score_threshold"):
@@ -146,6 +158,10 @@ class DetectStageConfig:
                                  f"{getattr(self, name)}")
         if self.extent is not None and self.extent < 0.0:
             raise ValueError(f"detect.extent must be >= 0, got {self.extent}")
+
+    def tile_config(self) -> TileConfig | None:
+        """The network detector's sliced inference (``None``: off)."""
+        return TileConfig(overlap=self.tile_overlap) if self.tile else None
 
     def detector_threshold(self) -> float:
         """The detector's confidence threshold: the lowest score any use of its boxes keeps."""

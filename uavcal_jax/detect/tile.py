@@ -1,0 +1,203 @@
+"""Sliced inference: small objects in large images (SAHI, Akyon et al. 2022, its
+``get_sliced_prediction``).
+
+A letterboxed network input shrinks a large photo: at the shipped detector's 256x384 input a
+4000x3000 aerial photo is scaled by 0.085, and a 40 px car becomes 3 px, below what the head
+resolves. Sliced inference runs the network on overlapping windows of the image at its own
+resolution instead, each window the size of the network input, plus (SAHI's
+``perform_standard_pred``) once on the whole letterboxed image for the objects larger than a
+window; the windows' boxes are shifted back into the image and all of them merged by a
+class-wise greedy NMS.
+
+Differences from SAHI, and why:
+
+- The windows are spread evenly between the image's borders (their count is SAHI's: the
+  fewest whose overlap is at least ``overlap`` of a window), where SAHI keeps a fixed stride
+  and moves the last window back to the border: the overlaps are then equal and no window
+  nearly repeats another.
+- Merging is greedy NMS on SAHI's default match metric, the intersection over the smaller box
+  (IOS) above 0.5, not SAHI's default greedy non-maximum *merging*: a box cut by a window's
+  edge lies inside the whole box another window (or the full image) finds, so IOS removes it
+  where IoU (about the cut fraction) may not, and the box kept is a box the network predicted,
+  not a union of them.
+- Every window and the full image go through the predict function in batches of a fixed
+  ``batch_size`` (a short batch is padded): one compiled shape for every image size.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from uavcal_jax.detect.augment import PAD_VALUE, letterbox
+from uavcal_jax.detect.config import SERVE_PREDICT
+from uavcal_jax.detect.predict import ImageDetections, detect_images, detect_letterboxed
+
+__all__ = ["MATCH_METRICS", "TileConfig", "detect", "detect_tiled", "merge_detections",
+           "tile_origins", "tile_windows"]
+
+#: How two boxes of a class are matched when merging: intersection over the smaller box's area
+#: (SAHI's default) or over the union.
+MATCH_METRICS = ("ios", "iou")
+
+
+@dataclass(frozen=True)
+class TileConfig:
+    """Sliced inference's settings (SAHI's defaults).
+
+    Attributes:
+        overlap: the least overlap of two neighbouring windows, a fraction of the window's
+            side (SAHI's ``overlap_height_ratio`` and ``overlap_width_ratio``), in [0, 1).
+        full_image: predict on the whole letterboxed image as well (SAHI's
+            ``perform_standard_pred``): objects larger than a window are found whole.
+        match_metric: one of :data:`MATCH_METRICS` (SAHI's ``postprocess_match_metric``).
+        match_thresh: a box matching a better-scored box of its class by more than this is
+            dropped (SAHI's ``postprocess_match_threshold``).
+        batch_size: windows per predict call (a short batch is padded).
+    """
+
+    overlap: float = 0.2
+    full_image: bool = True
+    match_metric: str = "ios"
+    match_thresh: float = 0.5
+    batch_size: int = 8
+
+    def __post_init__(self):
+        if not 0.0 <= self.overlap < 1.0:
+            raise ValueError(f"tile overlap must be in [0, 1), got {self.overlap}")
+        if self.match_metric not in MATCH_METRICS:
+            raise ValueError(f"tile match_metric must be one of {', '.join(MATCH_METRICS)}, "
+                             f"got {self.match_metric!r}")
+        if self.batch_size < 1:
+            raise ValueError(f"tile batch_size must be >= 1, got {self.batch_size}")
+
+    def replace(self, **changes) -> TileConfig:
+        return replace(self, **changes)
+
+
+def tile_origins(length: int, size: int, overlap: float) -> np.ndarray:
+    """The first pixels of the windows of ``size`` pixels along a side of ``length`` pixels:
+    ``(n,)`` int, the first 0, the last ``length - size``, evenly spread, ``n`` the fewest for
+    which neighbours overlap by at least ``int(overlap * size)`` pixels (SAHI's count). One
+    window at 0 when the side fits into one."""
+    if length <= size:
+        return np.zeros(1, np.int64)
+    step = size - int(overlap * size)
+    n = math.ceil((length - size) / step) + 1
+    return np.round(np.linspace(0, length - size, n)).astype(np.int64)
+
+
+def tile_windows(image_size: tuple[int, int], tile_size: tuple[int, int], overlap: float
+                 ) -> np.ndarray:
+    """The windows over an image: ``(n, 4)`` int ``x0, y0, x1, y1`` pixels (``x1, y1``
+    exclusive), row by row.
+
+    Args:
+        image_size: the image's ``(height, width)``.
+        tile_size: a window's ``(height, width)`` (the network input); a side of the image
+            shorter than the window's gives windows of the image's side.
+        overlap: as :attr:`TileConfig.overlap`.
+    """
+    (h, w), (th, tw) = image_size, tile_size
+    th, tw = min(th, h), min(tw, w)
+    return np.asarray([(x, y, x + tw, y + th) for y in tile_origins(h, th, overlap)
+                       for x in tile_origins(w, tw, overlap)], np.int64).reshape(-1, 4)
+
+
+def merge_detections(det: ImageDetections, metric: str = TileConfig.match_metric,
+                     thresh: float = TileConfig.match_thresh,
+                     max_det: int = SERVE_PREDICT.max_det) -> ImageDetections:
+    """Class-wise greedy NMS: best score first (earlier rows first among equal scores), a box
+    matching a kept box of its class by more than ``thresh`` (``metric``, one of
+    :data:`MATCH_METRICS`) is dropped; at most ``max_det`` kept. Boxes ``x0, y0, x1, y1``."""
+    boxes = np.asarray(det.boxes, np.float64).reshape(-1, 4)
+    scores = np.asarray(det.scores, np.float64)
+    classes = np.asarray(det.classes, np.int64)
+    order = np.argsort(-scores, kind="stable")
+    boxes, scores, classes = boxes[order], scores[order], classes[order]
+    area = np.clip(boxes[:, 2] - boxes[:, 0], 0, None) * np.clip(boxes[:, 3] - boxes[:, 1],
+                                                                  0, None)
+    dropped = np.zeros(len(scores), bool)
+    keep = []
+    # one row of matches per kept box (not the whole matrix: a large photo's hundreds of
+    # windows give tens of thousands of candidates at an evaluation's low threshold)
+    for i in range(len(scores)):
+        if dropped[i]:
+            continue
+        keep.append(i)
+        if len(keep) == max_det:
+            break
+        lo = np.maximum(boxes[i, :2], boxes[:, :2])
+        hi = np.minimum(boxes[i, 2:], boxes[:, 2:])
+        inter = np.prod(np.clip(hi - lo, 0, None), axis=-1)
+        denom = np.minimum(area[i], area) if metric == "ios" else area[i] + area - inter
+        dropped |= (inter > thresh * np.maximum(denom, 1e-12)) & (classes == classes[i])
+    keep = np.asarray(keep, np.int64)
+    return ImageDetections(boxes[keep], scores[keep], classes[keep])
+
+
+def detect_tiled(predict_fn: Callable, images_rgb: Sequence[np.ndarray],
+                 img_size: tuple[int, int], tile: TileConfig = TileConfig(),
+                 max_det: int = SERVE_PREDICT.max_det) -> list[ImageDetections]:
+    """Sliced-inference detections of decoded images, each in its own pixels.
+
+    Args:
+        predict_fn: ``predict_fn(images (B, H, W, 3)) -> Detections``, as
+            :func:`~uavcal_jax.detect.predict.detect_letterboxed` takes; ``B`` is always
+            ``tile.batch_size``.
+        images_rgb: uint8 (h, w, 3) RGB images of any sizes.
+        img_size: the network input ``(H, W)``, also the windows' size.
+        tile: the windows' overlap, the full-image pass and the merge.
+        max_det: detections kept per image after merging.
+
+    An image that fits into one window gets the full-image pass only (as
+    :func:`~uavcal_jax.detect.predict.detect_images`: windows add nothing there).
+    """
+    H, W = img_size
+    out = []
+    for image in images_rgb:
+        h, w = image.shape[:2]
+        windows = tile_windows((h, w), (H, W), tile.overlap)
+        if len(windows) == 1:
+            out += detect_images(predict_fn, [image], img_size, tile.batch_size)
+            continue
+        # the windows first: among equal scores a window's box (full resolution) is kept
+        crops = [image[y0:y1, x0:x1] for x0, y0, x1, y1 in windows]
+        shifts = [(float(x0), float(y0)) for x0, y0, _, _ in windows]
+        if tile.full_image:
+            crops.append(image)
+            shifts.append((0.0, 0.0))
+        found = []
+        for start in range(0, len(crops), tile.batch_size):
+            chunk = crops[start:start + tile.batch_size]
+            batch = np.full((tile.batch_size, H, W, 3), PAD_VALUE / 255, np.float32)
+            ratios, pads, sizes = [], [], []
+            for j, crop in enumerate(chunk):
+                boxed, ratio, pad = letterbox(crop, (H, W))
+                batch[j] = boxed.astype(np.float32) / 255.0
+                ratios.append(ratio)
+                pads.append(pad)
+                sizes.append((crop.shape[1], crop.shape[0]))
+            found += detect_letterboxed(predict_fn, batch, ratios, pads, sizes)
+        shifted = [d.boxes + np.asarray([dx, dy, dx, dy]) for d, (dx, dy)
+                   in zip(found, shifts, strict=True)]
+        out.append(merge_detections(
+            ImageDetections(np.concatenate(shifted).reshape(-1, 4),
+                            np.concatenate([d.scores for d in found]),
+                            np.concatenate([d.classes for d in found])),
+            tile.match_metric, tile.match_thresh, max_det))
+    return out
+
+
+def detect(predict_fn: Callable, images_rgb: Sequence[np.ndarray], img_size: tuple[int, int],
+           batch_size: int = 1, tile: TileConfig | None = None,
+           max_det: int = SERVE_PREDICT.max_det) -> list[ImageDetections]:
+    """Detections of decoded images, each in its own pixels: letterboxed whole
+    (:func:`~uavcal_jax.detect.predict.detect_images`, ``batch_size`` images per call) when
+    ``tile`` is ``None``, else sliced (:func:`detect_tiled`)."""
+    if tile is None:
+        return detect_images(predict_fn, images_rgb, img_size, batch_size)
+    return detect_tiled(predict_fn, images_rgb, img_size, tile, max_det)
