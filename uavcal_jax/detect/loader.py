@@ -166,8 +166,8 @@ class DetectionLoader:
             image, boxes, classes, _ = self.load(index)
             image, boxes, classes = random_crop(
                 image, boxes, classes, rng, (H, W), scale=aug.crop_scale,
-                degrees=aug.degrees, rot90=aug.rot90, on_object=aug.crop_on_object, min_box_px=aug.min_box_px,
-                min_area_ratio=aug.min_area_ratio)
+                degrees=aug.degrees, rot90=aug.rot90, on_object=aug.crop_on_object,
+                min_box_px=aug.min_box_px, min_area_ratio=aug.min_area_ratio)
             ratio, pad = float("nan"), (float("nan"), float("nan"))
         elif aug is not None and aug.mosaic > 0 and rng.random() < aug.mosaic:
             others = rng.integers(0, len(self.records), 3)
