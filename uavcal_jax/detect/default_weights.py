@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from uavcal_jax.detect.augment import AugmentConfig
 from uavcal_jax.detect.config import DetectConfig, DetectorConfig, TrainConfig
 from uavcal_jax.errors import DataError
 
@@ -45,11 +46,17 @@ __all__ = ["DEFAULT_DETECTOR_RUN", "SHIPPED", "default_detector_run"]
 #: The shipped run folder.
 DEFAULT_DETECTOR_RUN = Path(__file__).resolve().parent / "weights" / "default"
 
-#: The shipped detector's preset: YZNet-YOLO-tiny at 256x384 (H x W), YOLOv5's SGD recipe.
+#: The shipped detector's preset: YZNet-YOLO-tiny predicting at 480x640 (H x W, the paper's
+#: 640x480), trained with YOLOv5's SGD recipe on 320x320 crops at 0.35-2.5 times each image's
+#: stored resolution (a quarter of them turned by a quarter turn, 30 % grey), YOLOv5's anchors
+#: (autoanchor would fit them to letterboxed sizes, not the crops').
 #: ``experiments/detector_default_weights.py`` trains it (``--epochs``, ``--set`` change it).
 SHIPPED = DetectConfig(
-    detector=DetectorConfig(model="yznet-yolo-tiny", img_size=(256, 384)),
-    train=TrainConfig.yolov5(epochs=20, batch_size=8, val_fraction=0.1, eval_every=3),
+    detector=DetectorConfig(model="yznet-yolo-tiny", img_size=(480, 640)),
+    train=TrainConfig.yolov5(
+        epochs=30, batch_size=8, val_fraction=0.1, eval_every=3, autoanchor=False,
+        augment=AugmentConfig(crop_scale=(0.35, 2.5), crop_size=(320, 320), degrees=5.0,
+                              rot90=0.25, gray=0.3)),
 )
 
 

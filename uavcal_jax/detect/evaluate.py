@@ -9,7 +9,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from uavcal_jax.detect.datasets import load_dataset
+from uavcal_jax.data.detection_records import DetectionDataset
+from uavcal_jax.detect.datasets import load_dataset, remap_classes
 from uavcal_jax.detect.loader import DetectionLoader, read_image_rgb
 from uavcal_jax.detect.metrics import evaluate_predictions
 from uavcal_jax.detect.predict import make_predict_fn, predict_dataset
@@ -22,7 +23,8 @@ from uavcal_jax.runs import results_folder
 EVAL_FILE = "eval.json"
 
 
-def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: str | None = None,
+def evaluate_run(run: str | Path, data: str | Path | DetectionDataset | None = None,
+                 data_format: str | None = None,
                  *, which: str = "best", batch_size: int | None = None,
                  interpolation: str = "coco101", progress: Callable | None = None,
                  out_dir: str | Path | None = None, tile: TileConfig | None = None,
@@ -33,8 +35,9 @@ def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: s
 
     Args:
         run: a run folder written by :func:`~uavcal_jax.detect.train.train`.
-        data: evaluate on every image of this data set (read with ``data_format``, the run's
-            class list); by default the run's own validation split of its training data.
+        data: evaluate on every image of this data set (a folder read with ``data_format``,
+            or a loaded :class:`DetectionDataset`, e.g. a split's subset; in the run's class
+            list); by default the run's own validation split of its training data.
         which: ``"best"`` or ``"last"`` checkpoint.
         batch_size: default the run's training batch size.
         interpolation: ``"coco101"`` or ``"voc07"``.
@@ -53,7 +56,10 @@ def evaluate_run(run: str | Path, data: str | Path | None = None, data_format: s
     run = Path(run)
     loaded = load_run(run, which)
     class_names = loaded.data["class_names"]
-    if data is not None:
+    if isinstance(data, DetectionDataset):
+        dataset = remap_classes(data, class_names)
+        where = f"{data.root} ({len(data)} images)"
+    elif data is not None:
         dataset = load_dataset(data, data_format, class_names)
         where = str(data)
     else:
