@@ -233,7 +233,9 @@ def test_ground_truth_glitches_do_not_reach_the_imu():
     v1 = read_tum(shared_path("trajectories", "euroc", "V1_01_easy.txt"))
     mh = read_tum(shared_path("trajectories", "euroc", "MH_04_difficult.txt"))
     artefacts = mh.position[:-1] - fit_tum_trajectory(mh).state_ns(mh.t_ns[:-1]).position
-    assert np.abs(artefacts).max() > 0.05
+    # the steps themselves (the fit keeps to the file around them, so the artefacts are
+    # local): up to 13 cm between two samples
+    assert np.linalg.norm(np.diff(artefacts, axis=0), axis=1).max() > 0.1
     n = min(len(artefacts), len(v1))
     glitchy = GroundTruth(t_ns=v1.t_ns[:n], position=v1.position[:n] + artefacts[:n],
                           quaternion=v1.quaternion[:n])

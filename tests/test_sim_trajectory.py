@@ -13,7 +13,7 @@ from uavcal_jax.data.tum import read_tum
 from uavcal_jax.errors import DataError
 from uavcal_jax.geometry.frames import GRAVITY
 from uavcal_jax.sim.flights import FlightConfig, procedural_flight, straight_flight
-from uavcal_jax.sim.pose_samples import remove_position_jumps
+from uavcal_jax.sim.pose_samples import RAMP_ACCELERATION, remove_position_jumps, step_ramps
 from uavcal_jax.sim.trajectory import Trajectory, sign_continuous
 from uavcal_jax.sim.trajectory_fit import FitConfig, fit_tum_trajectory
 
@@ -257,7 +257,11 @@ def test_fit_recovers_a_known_smooth_trajectory():
 
 
 def test_position_jumps_are_removed():
-    """Step glitches (as in EuRoC's Machine Hall ground truth) do not reach the trajectory."""
+    """Step glitches (as in EuRoC's Machine Hall ground truth) do not reach the trajectory as
+    acceleration spikes: each becomes a ramp of the same size whose acceleration stays under
+    ``RAMP_ACCELERATION``, and the positions keep to the file's outside the ramps (shifting
+    every later sample by the step, as the remover once did, left the 13 cm step's offset
+    over the rest of the flight)."""
     traj, t_ns, state = _synthetic_recording(seed=1)
     pos = state.position.copy()
     jumps = {1000: [0.13, -0.05, 0.01], 3000: [-0.004, 0.002, 0.0], 4500: [0.0, 0.0, 0.02]}
@@ -267,8 +271,21 @@ def test_position_jumps_are_removed():
     t = (t_ns - t_ns[0]) * 1e-9
     fixed, found = remove_position_jumps(t, pos)
     assert {999, 2999, 4499} <= set(found.tolist())
-    diff = fixed - state.position
-    assert np.abs(diff - diff.mean(0)).max() < 1e-4  # only a constant offset is left
+    # the outlier is moved onto its neighbours; the steps become ramps of their size
+    assert np.abs(fixed[2000] - pos[2000] + [0.01, 0.0, 0.0]).max() < 1e-4
+    ramps = np.zeros_like(pos)
+    for i, d in jumps.items():
+        ramps += step_ramps(t, [0.5 * (t[i - 1] + t[i])], [d])
+    clean = pos - ramps
+    clean[2000] -= [0.01, 0.0, 0.0]
+    np.testing.assert_allclose(fixed, clean, atol=1e-4)
+    # ... so away from them the file's positions are kept
+    far = np.abs(t - t[2000]) > 0.1
+    for i, d in jumps.items():  # a ramp's width: peak acceleration 5.77 |d| / width^2
+        width = math.sqrt(10.0 / math.sqrt(3.0) * np.linalg.norm(d) / RAMP_ACCELERATION)
+        far &= np.abs(t - t[i]) > 0.5 * width + 0.1
+    assert np.count_nonzero(far) > len(t) // 2
+    assert np.abs(fixed - pos)[far].max() < 1e-4
     gt = GroundTruth(t_ns=t_ns, position=pos, quaternion=state.quaternion)
     fit = fit_tum_trajectory(gt)
     tt = np.linspace(fit.t_start + 1.0, fit.t_end - 1.0, 5000)

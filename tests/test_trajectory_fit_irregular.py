@@ -31,7 +31,7 @@ from uavcal_jax.geometry.frames import GRAVITY
 from uavcal_jax.imu.noise import EUROC_ADIS16448
 from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.imu_synth import synthesize_imu
-from uavcal_jax.sim.pose_samples import remove_position_jumps
+from uavcal_jax.sim.pose_samples import remove_position_jumps, step_ramps
 from uavcal_jax.sim.simulate import simulate_report
 from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import (
@@ -162,7 +162,8 @@ def test_fit_report_measures_the_noise_and_the_flight(recording):
 
 def test_jump_removal_ignores_near_duplicate_stamps(recording):
     """Two noisy poses 0.03 ms apart are a velocity of ~50 m/s: the residual's noise grows as
-    much there, so no step is seen in the raw file; a real 5 cm step still is."""
+    much there, so no step is seen in the raw file; a real 5 cm step still is, and becomes a
+    ramp: the file's positions are kept away from it."""
     _, _, gt, _, _, _ = recording
     t = (gt.t_ns - gt.t_ns[0]) * 1e-9
     fixed, jumps = remove_position_jumps(t, gt.position)
@@ -172,8 +173,10 @@ def test_jump_removal_ignores_near_duplicate_stamps(recording):
     stepped[i + 1:] += [0.05, 0.0, 0.0]
     fixed, jumps = remove_position_jumps(t, stepped)
     assert i in jumps.tolist()
-    diff = fixed - gt.position
-    assert np.abs(diff - np.median(diff, axis=0)).max() < 0.005
+    ramp = step_ramps(t, [0.5 * (t[i] + t[i + 1])], [[0.05, 0.0, 0.0]])
+    assert np.abs(fixed - (stepped - ramp)).max() < 0.005
+    assert np.abs(ramp).max() == pytest.approx(0.025, abs=0.002)  # half the step, at the step
+    assert np.array_equal(fixed[np.abs(t - t[i]) > 2.5], stepped[np.abs(t - t[i]) > 2.5])
 
 
 def test_sim_config_records_the_fit(recording, tmp_path):

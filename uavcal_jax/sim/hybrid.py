@@ -250,7 +250,7 @@ def _hybrid_into(seq: Sequence, real: Path, span: HybridSpan, config: SimConfig,
     t0_ns, t1_ns = int(imu.t_ns[0]), int(imu.t_ns[-1])
     try:
         traj = fit_tum_trajectory(seq.ground_truth, start=t0_ns * 1e-9,
-                                  duration=(t1_ns - t0_ns) * 1e-9)
+                                  duration=(t1_ns - t0_ns) * 1e-9, where=real)
     except ValueError as err:  # DataError included: name the real recording
         raise DataError(f"cannot fit a trajectory to the ground truth: {err}", real) from None
     timings["trajectory_imu"] = time.perf_counter() - t_begin

@@ -160,7 +160,7 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
         fit_config = FitConfig()
         try:
             traj, fit = fit_trajectory_report(gt, start=t0_ns * 1e-9, duration=config.duration,
-                                              config=fit_config)
+                                              config=fit_config, where=path)
         except ValueError as err:
             raise DataError(f"cannot fit a trajectory: {err}", path) from None
         check_flight_limits(fit, fit_config, path)

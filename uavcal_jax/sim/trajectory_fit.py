@@ -11,9 +11,15 @@ Recordings come as they come, so the poses are prepared first:
 1. Near-duplicate stamps (closer than :attr:`FitConfig.merge_fraction` of the typical sample
    period; motion-capture exports have pairs 0.03 ms apart) are merged into one pose (mean
    time, position and quaternion): two noisy positions 30 us apart are a velocity of tens of
-   m/s to anything that differentiates them.
-2. Instantaneous position steps (EuRoC's Machine Hall ground truth has dozens) are removed
-   (:func:`remove_position_jumps`, which allows for irregular sample intervals).
+   m/s to anything that differentiates them. A member that differs from the others by more
+   than the noise and the motion allow (timestamp jitter: a pose stamped a sample period or
+   more from when it was taken, centimetres off at flight speed) is dropped instead, with a
+   :class:`~uavcal_jax.errors.DataRepairWarning` naming the file and the count
+   (:func:`~uavcal_jax.sim.pose_samples.drop_inconsistent_duplicates`). Averaged in, each
+   would be an outlier; read as position steps, they once shifted the flight by decimetres.
+2. Instantaneous position steps (EuRoC's Machine Hall ground truth has dozens) are replaced
+   by smooth ramps of the same size (:func:`remove_position_jumps`, which allows for
+   irregular sample intervals): the fit keeps to the file's poses away from each step.
 3. Each pose is weighted by the time it stands for (half the span to its neighbours, at most
    one typical period), so a dense burst of samples counts as much as the same time sampled
    regularly and no more.
@@ -56,9 +62,11 @@ from scipy.interpolate import BSpline
 
 from uavcal_jax.data.sequence import GroundTruth
 from uavcal_jax.data.tum import read_tum
-from uavcal_jax.errors import DataError, FlightLimitWarning
+from uavcal_jax.errors import DataError, DataRepairWarning, FlightLimitWarning
 from uavcal_jax.geometry.frames import GRAVITY, GRAVITY_W
 from uavcal_jax.sim.pose_samples import (
+    RAMP_ACCELERATION,
+    drop_inconsistent_duplicates,
     merge_near_duplicates,
     remove_position_jumps,
     rotation_noise,
@@ -100,12 +108,17 @@ class FitConfig:
             are free of spline edge effects.
         min_samples_per_knot: see ``knot_spacing``.
         merge_fraction: stamps closer than this fraction of the typical sample period are
-            merged into one pose; 0 disables it.
+            merged into one pose, or dropped where they disagree (see
+            :func:`~uavcal_jax.sim.pose_samples.drop_inconsistent_duplicates`, which takes
+            ``jump_threshold`` as its floor); 0 disables it.
         jump_threshold: metres; position steps larger than this (and than
             ``jump_sigmas`` robust standard deviations of the data's noise) that the
-            neighbouring samples do not share are removed before fitting, see
+            neighbouring samples do not share are replaced by ramps before fitting, see
             :func:`remove_position_jumps`. ``None`` disables it.
         jump_sigmas, jump_max_jerk: see :func:`remove_position_jumps`.
+        jump_ramp_acceleration: m/s^2; the peak acceleration of the ramp that replaces a
+            position step (:func:`~uavcal_jax.sim.pose_samples.step_ramps`): a 5 cm step
+            becomes a 3.8 s ramp, a 1 mm step a 0.5 s one.
         warn_specific_force: m/s^2; a peak specific force (what an accelerometer reads,
             ``|a - g|``: thrust over mass for a multirotor) above this gets a
             :class:`~uavcal_jax.errors.FlightLimitWarning`. 4 g: an agile quadrotor's
@@ -128,6 +141,7 @@ class FitConfig:
     jump_threshold: float | None = 5e-4
     jump_sigmas: float = 8.0
     jump_max_jerk: float = 100.0
+    jump_ramp_acceleration: float = RAMP_ACCELERATION
     warn_specific_force: float = 4.0 * GRAVITY
     warn_angular_rate: float = 20.0
     refuse_specific_force: float = 50.0 * GRAVITY
@@ -139,8 +153,8 @@ class FitReport:
     """How a fit went (``sim_config.json``'s ``flight.trajectory_fit``).
 
     Residuals and noise are 3-D magnitudes over the poses inside the trajectory's span
-    (``[t_start, t_end]``, padding excluded) as fitted (near-duplicates merged, position
-    steps removed): position in metres, rotation as the angle between fitted and recorded
+    (``[t_start, t_end]``, padding excluded) as fitted (near-duplicates merged or dropped,
+    position steps ramped): position in metres, rotation as the angle between fitted and recorded
     orientation in radians. The noise figures are the data's own
     (:func:`sample_noise`), expressed the same way (RMS magnitude of the noise vector), so a
     residual close to its noise means the fit removed the noise and little motion.
@@ -148,7 +162,9 @@ class FitReport:
     Attributes:
         poses: poses read inside the fitted interval (span plus padding).
         merged: poses merged away as near-duplicate stamps.
-        jumps: position steps removed.
+        dropped: near-duplicate poses dropped as inconsistent with their twins (timestamp
+            jitter).
+        jumps: position steps replaced by ramps.
         median_period_s: typical sample interval (near-duplicates aside).
         max_gap_s: longest interval between fitted poses.
         knot_spacing_s: the spline's knot spacing.
@@ -163,6 +179,7 @@ class FitReport:
 
     poses: int
     merged: int
+    dropped: int
     jumps: int
     median_period_s: float
     max_gap_s: float
@@ -278,7 +295,7 @@ def _rotation_angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
 def fit_trajectory_report(source: str | Path | GroundTruth, start: float | None = None,
                           duration: float | None = None,
                           config: FitConfig = FitConfig(),  # noqa: B008
-                          ) -> tuple[Trajectory, FitReport]:
+                          where: str | Path | None = None) -> tuple[Trajectory, FitReport]:
     """Fit a smooth trajectory to recorded poses (TUM file or ``GroundTruth``) and report on
     the fit.
 
@@ -296,6 +313,7 @@ def fit_trajectory_report(source: str | Path | GroundTruth, start: float | None 
             (default: the first pose). Clipped to the data.
         duration: seconds (default: to the last pose). Clipped to the data.
         config: smoothing settings.
+        where: the file, for messages (default: ``source`` when it is a path).
 
     Returns:
         ``(trajectory, report)``: a :class:`Trajectory` with ``t_start``/``t_end`` in the
@@ -305,7 +323,8 @@ def fit_trajectory_report(source: str | Path | GroundTruth, start: float | None 
         DataError: too few poses, or a window that does not overlap the data.
     """
     gt, name = _load_ground_truth(source)
-    where = None if isinstance(source, GroundTruth) else Path(source)
+    if where is None and not isinstance(source, GroundTruth):
+        where = Path(source)
     t_ns = np.asarray(gt.t_ns, dtype=np.int64)
     pos = np.asarray(gt.position, dtype=np.float64)
     quat = np.asarray(gt.quaternion, dtype=np.float64)
@@ -331,8 +350,18 @@ def fit_trajectory_report(source: str | Path | GroundTruth, start: float | None 
     poses = len(t_ns)
     quat = sign_continuous(quat / np.linalg.norm(quat, axis=1, keepdims=True))
     period = typical_period(t_ns * 1e-9) if poses > 1 else 0.0
-    merged = 0
+    merged = dropped = 0
     if config.merge_fraction > 0 and poses > 1:
+        floor = 0.0 if config.jump_threshold is None else config.jump_threshold
+        keep = drop_inconsistent_duplicates(t_ns, pos, config.merge_fraction * period, floor)
+        dropped = int(np.count_nonzero(~keep))
+        if dropped:
+            t_ns, pos, quat = t_ns[keep], pos[keep], quat[keep]
+            name_ = "" if where is None else f"{where}: "
+            warnings.warn(f"{name_}dropped {dropped} of {poses} poses stamped within "
+                          f"{config.merge_fraction * period * 1e3:.2g} ms of another that "
+                          "they disagree with by more than the noise and the motion allow "
+                          "(timestamp jitter)", DataRepairWarning, stacklevel=2)
         t_ns, pos, quat, merged = merge_near_duplicates(t_ns, pos, quat,
                                                         config.merge_fraction * period)
     if len(t_ns) < 2 * (DEGREE + 1):
@@ -343,7 +372,7 @@ def fit_trajectory_report(source: str | Path | GroundTruth, start: float | None 
     jumps = np.zeros(0, dtype=np.int64)
     if config.jump_threshold is not None:
         pos, jumps = remove_position_jumps(tau, pos, config.jump_threshold, config.jump_sigmas,
-                                           config.jump_max_jerk)
+                                           config.jump_max_jerk, config.jump_ramp_acceleration)
     spacing = max(config.knot_spacing, config.min_samples_per_knot * period)
     knots = uniform_knots(tau[0], tau[-1], spacing)
     fit = _PenalisedFit(tau, time_weights(tau, period), knots)
@@ -366,7 +395,7 @@ def fit_trajectory_report(source: str | Path | GroundTruth, start: float | None 
     dp = np.linalg.norm(traj.position_spline(tau[inside]) - pos[inside], axis=1)
     angle = _rotation_angle(traj.quaternion_spline(tau[inside]), quat[inside])
     report = FitReport(
-        poses=int(poses), merged=int(merged), jumps=int(jumps.size),
+        poses=int(poses), merged=int(merged), dropped=dropped, jumps=int(jumps.size),
         median_period_s=float(period), max_gap_s=float(np.max(np.diff(tau))),
         knot_spacing_s=float(knots[DEGREE + 1] - knots[DEGREE]),
         smoothing_position=float(lam_p), smoothing_rotation=float(lam_q),
@@ -381,9 +410,11 @@ def fit_trajectory_report(source: str | Path | GroundTruth, start: float | None 
 
 def fit_tum_trajectory(source: str | Path | GroundTruth, start: float | None = None,
                        duration: float | None = None,
-                       config: FitConfig = FitConfig()) -> Trajectory:  # noqa: B008
-    """:func:`fit_trajectory_report`'s trajectory alone (same arguments and errors)."""
-    return fit_trajectory_report(source, start, duration, config)[0]
+                       config: FitConfig = FitConfig(),  # noqa: B008
+                       where: str | Path | None = None) -> Trajectory:
+    """:func:`fit_trajectory_report`'s trajectory alone (same arguments, errors and
+    warnings)."""
+    return fit_trajectory_report(source, start, duration, config, where)[0]
 
 
 def check_flight_limits(report: FitReport, config: FitConfig = FitConfig(),  # noqa: B008
