@@ -96,6 +96,17 @@ def test_temporal_noise_of_a_static_scene_gives_its_sigma():
     assert 40 < noise["mean_level"] < 200
 
 
+def test_photon_transfer_separates_read_and_shot_noise():
+    read, shot = 1.5, 0.04  # grey levels; grey levels^2 per grey level
+    scene = np.tile(np.linspace(20, 230, 400), (60, 1))  # every level, flat along rows
+    sigma = np.sqrt(read * read + shot * scene)
+    frames = scene + np.random.default_rng(8).normal(size=(80, *scene.shape)) * sigma
+    ptc = realism.photon_transfer(frames, flat_quantile=1.0)
+    assert ptc["levels"] >= 10
+    assert ptc["read_noise"] == pytest.approx(read, rel=0.1)
+    assert ptc["shot_slope"] == pytest.approx(shot, rel=0.1)
+
+
 def test_intensity_and_gradient_statistics():
     ramp = np.tile(np.arange(100, dtype=np.float64) * 2.0, (50, 1))  # 2 grey levels per px
     np.testing.assert_allclose(realism.gradient_magnitude(ramp), 2.0)

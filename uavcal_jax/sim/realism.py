@@ -28,6 +28,7 @@ __all__ = [
     "imu_errors",
     "intensity_histogram",
     "intensity_summary",
+    "photon_transfer",
     "temporal_noise",
 ]
 
@@ -100,6 +101,20 @@ def gradient_summary(frames) -> dict[str, float]:
     return out
 
 
+def _flat_pixels(stack: np.ndarray, flat_quantile: float, margin: float):
+    """(mean, std, keep) of the interior pixels of a static (T, H, W) stack: the flat,
+    unclipped ones (see :func:`temporal_noise`)."""
+    if len(stack) < 2:
+        raise ValueError("temporal noise needs at least two frames")
+    mean = stack.mean(axis=0)[1:-1, 1:-1]
+    std = stack.std(axis=0, ddof=1)[1:-1, 1:-1]
+    grad = gradient_magnitude(stack.mean(axis=0))
+    keep = (grad <= np.quantile(grad, flat_quantile)) & (mean > margin) & (mean < 255 - margin)
+    if not keep.any():
+        raise ValueError("no flat, unclipped pixels to measure the noise on")
+    return mean, std, keep
+
+
 def temporal_noise(frames, flat_quantile: float = 0.5, margin: float = 5.0) -> dict[str, float]:
     """Image noise of a static camera: the per-pixel standard deviation over time.
 
@@ -118,17 +133,41 @@ def temporal_noise(frames, flat_quantile: float = 0.5, margin: float = 5.0) -> d
         ``std_median``: the median per-pixel temporal std (grey levels, ddof 1);
         ``std_mean``; ``mean_level``: the mean intensity of the pixels counted.
     """
-    stack = _stack(frames)
-    if len(stack) < 2:
-        raise ValueError("temporal noise needs at least two frames")
-    mean = stack.mean(axis=0)[1:-1, 1:-1]
-    std = stack.std(axis=0, ddof=1)[1:-1, 1:-1]
-    grad = gradient_magnitude(stack.mean(axis=0))
-    keep = (grad <= np.quantile(grad, flat_quantile)) & (mean > margin) & (mean < 255 - margin)
-    if not keep.any():
-        raise ValueError("no flat, unclipped pixels to measure the noise on")
+    mean, std, keep = _flat_pixels(_stack(frames), flat_quantile, margin)
     return {"std_median": float(np.median(std[keep])), "std_mean": float(std[keep].mean()),
             "mean_level": float(mean[keep].mean())}
+
+
+def photon_transfer(frames, bins: int = 16, min_pixels: int = 50, flat_quantile: float = 0.5,
+                    margin: float = 5.0) -> dict[str, float]:
+    """The photon transfer line of a static camera: temporal variance against mean level.
+
+    A sensor with shot and read noise has ``var = read^2 + shot * level`` (grey levels^2;
+    ``shot`` is the grey levels one photo-electron adds, times the gain), so the line tells
+    the two apart where one noise figure at one level cannot. The flat, unclipped pixels of
+    :func:`temporal_noise` are binned by mean level (``bins`` equal bins over 0-255, those
+    with at least ``min_pixels`` pixels kept), and the line is fitted by least squares to the
+    bins' median variances.
+
+    Returns:
+        ``read_noise``: grey levels (the square root of the intercept, 0 when it is
+        negative); ``shot_slope``: grey levels^2 of variance per grey level of signal;
+        ``levels``: how many bins the fit used (at least two, else both figures are NaN).
+    """
+    mean, std, keep = _flat_pixels(_stack(frames), flat_quantile, margin)
+    level, var = mean[keep], std[keep] ** 2
+    idx = np.minimum((level / 256.0 * bins).astype(np.int64), bins - 1)
+    xs, ys = [], []
+    for b in range(bins):
+        inside = idx == b
+        if inside.sum() >= min_pixels:
+            xs.append(np.median(level[inside]))
+            ys.append(np.median(var[inside]))
+    if len(xs) < 2:
+        return {"read_noise": float("nan"), "shot_slope": float("nan"), "levels": len(xs)}
+    slope, intercept = np.polyfit(np.asarray(xs), np.asarray(ys), 1)
+    return {"read_noise": float(np.sqrt(max(intercept, 0.0))), "shot_slope": float(slope),
+            "levels": len(xs)}
 
 
 def imu_errors(ground_truth: GroundTruth, imu: ImuData, noise: ImuNoise, seed: int = 0
