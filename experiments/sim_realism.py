@@ -40,6 +40,7 @@ Usage::
 
     python experiments/sim_realism.py                  # about 2 minutes on a 2-core CPU
     python experiments/sim_realism.py --write-docs
+    python experiments/sim_realism.py --set gain=1.4 --out out/sim_realism_gain  # a setting
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ import numpy as np
 from _docs import add_write_docs, cpu_name, write_docs  # the script's folder is first on sys.path
 
 from uavcal_jax.argtypes import print_json
+from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.results_doc import markdown_table
 from uavcal_jax.errors import DataError
@@ -235,11 +237,21 @@ def main(argv=None) -> int:
                     help="the EuRoC V1_01 micro slice (the folder holding mav0)")
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "out" / "sim_realism")
     ap.add_argument("--seed", type=int, default=SimConfig().seed, help="the simulator's seed")
+    ap.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="SimConfig fields for the rendered frames (as `uavcal simulate "
+                         "--set`), e.g. gain=1.5: measure a camera setting against the real "
+                         "frames")
     add_write_docs(ap)
     args = ap.parse_args(argv)
     if not (args.data / "mav0").is_dir():
         print(f"no EuRoC V1_01 micro slice at {args.data} (needs ../shared/data beside the "
               "checkout)", file=sys.stderr)
+        return 2
+    try:
+        config = apply_overrides(SimConfig(seed=args.seed, depth=False, targets=False),
+                                 args.set)
+    except DataError as err:
+        print(f"--set: {err}", file=sys.stderr)
         return 2
     t_begin = time.perf_counter()
     print(f"CPU: {cpu_name()}")
@@ -249,7 +261,6 @@ def main(argv=None) -> int:
             warnings.simplefilter("ignore")  # the slice's cam1 lists 4 frames it lacks
             real_seq = read_real(args.data)
             real_t, real0, real1 = stereo_frames(real_seq)
-            config = SimConfig(seed=args.seed, depth=False, targets=False)
             first_imu = int(real_seq.imu.t_ns[0])
             simulate_hybrid(args.data, args.out / "render", config,
                             start=(int(real_t[0]) - first_imu) * 1e-9,
