@@ -15,7 +15,8 @@ contrast, texture, noise) and what the VIO's front end gets from it, not the con
 - the gradient-magnitude distribution (mean, median, 90th percentile);
 - the image noise: the per-pixel temporal std over the static frames, on flat, unclipped
   pixels (:func:`uavcal_jax.sim.realism.temporal_noise`), and its read and shot parts (the
-  photon transfer line, :func:`uavcal_jax.sim.realism.photon_transfer`);
+  photon transfer line, :func:`uavcal_jax.sim.realism.photon_transfer`); the simulator's
+  frames for it are rendered at one pose held still (:func:`render_static`);
 - Shi-Tomasi corners (uncapped), Lucas-Kanade from each frame to the next (survival of the
   forward-backward check, the LK residual, the forward-backward distance), and the VIO
   tracker's own track survival and stereo inlier rate (:mod:`uavcal_jax.vio.frontend_stats`).
@@ -33,7 +34,8 @@ ground truth's fit does not follow).
 Prints one table ``statistic | real | simulated | ratio`` (ratio = simulated / real), the
 statistics more than 25 % off, and, last, one JSON object ``{statistic: {"real": x, "sim":
 y}}``. Writes PNGs (an example frame of each, intensity histograms, gradient distributions,
-IMU spectra, Allan curves) and the rendered recording (``render/``) into ``--out``.
+IMU spectra, Allan curves) and the rendered recordings (``render/``, ``render_static/``) into
+``--out``.
 ``--write-docs`` puts the table into the ``sim_realism`` section of docs/results.md.
 
 Usage::
@@ -46,6 +48,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -61,12 +64,14 @@ from uavcal_jax.argtypes import print_json
 from uavcal_jax.config import apply_overrides
 from uavcal_jax.data.euroc import read_euroc
 from uavcal_jax.data.results_doc import markdown_table
+from uavcal_jax.data.sequence import GroundTruth
+from uavcal_jax.data.tum import write_tum
 from uavcal_jax.errors import DataError
 from uavcal_jax.imu import noise_stats
 from uavcal_jax.sim import realism
 from uavcal_jax.sim.config import SimConfig, stage_seeds
 from uavcal_jax.sim.hybrid import read_real, simulate_hybrid
-from uavcal_jax.sim.simulate import imu_calibration
+from uavcal_jax.sim.simulate import imu_calibration, simulate
 from uavcal_jax.vio.frontend import FeatureTracker
 from uavcal_jax.vio.frontend_stats import corner_count, lk_pair_stats, tracking_stats
 
@@ -92,17 +97,43 @@ def stereo_frames(seq, t_ns: np.ndarray | None = None):
             np.stack([c1.load(int(i)) for i in i1]))
 
 
+def render_static(real_seq, t_ns: np.ndarray, config: SimConfig, out: Path):
+    """The simulator's frames at one pose held still: the real ground truth's nearest to
+    ``t_ns[0]``, at the frame times ``t_ns`` (a constant TUM trajectory,
+    :func:`uavcal_jax.sim.simulate.simulate`). The ground truth's own jitter (the fit of its
+    sub-millimetre noise) would shift the rendered texture by a fraction of a pixel and count as
+    noise; the real camera's noise is measured on frames that did not move either.
+
+    Returns:
+        ``(t_ns, cam0 (F, H, W) uint8, cam1 (F, H, W) uint8)``.
+    """
+    gt = real_seq.ground_truth
+    i = int(np.argmin(np.abs(gt.t_ns - t_ns[0])))
+    t_gt = np.arange(t_ns[0], t_ns[-1] + 200_000_000, 50_000_000, dtype=np.int64)
+    still = GroundTruth(t_ns=t_gt, position=np.repeat(gt.position[i:i + 1], len(t_gt), 0),
+                        quaternion=np.repeat(gt.quaternion[i:i + 1], len(t_gt), 0))
+    tum = write_tum(out / "static_pose.tum", still)
+    root = simulate(dataclasses.replace(config, trajectory=str(tum), start=0.0,
+                                        duration=(int(t_ns[-1]) - int(t_ns[0])) * 1e-9),
+                    out / "render_static", progress=False, overwrite=True)
+    return stereo_frames(read_euroc(root))
+
+
+def noise_statistics(left: np.ndarray) -> dict[str, float]:
+    """The temporal noise figures of a static (F, H, W) stack (see the module docstring)."""
+    noise = realism.temporal_noise(left)
+    ptc = realism.photon_transfer(left)
+    return {"noise_std": noise["std_median"], "noise_level": noise["mean_level"],
+            "read_noise": ptc["read_noise"], "shot_slope": ptc["shot_slope"]}
+
+
 def image_statistics(seq, left: np.ndarray, right: np.ndarray, ref_hist: np.ndarray,
                      other_hist: np.ndarray) -> dict[str, float]:
-    """The camera statistics of one stereo sequence (see the module docstring)."""
+    """The camera statistics of one stereo sequence (see the module docstring), but for the
+    noise (:func:`noise_statistics`)."""
     out = {f"intensity_{k}": v for k, v in realism.intensity_summary(left).items()}
     out["histogram_emd"] = realism.histogram_emd(ref_hist, other_hist)
     out |= {f"gradient_{k}": v for k, v in realism.gradient_summary(left).items()}
-    noise = realism.temporal_noise(left)
-    out["noise_std"] = noise["std_median"]
-    out["noise_level"] = noise["mean_level"]
-    ptc = realism.photon_transfer(left)
-    out["read_noise"], out["shot_slope"] = ptc["read_noise"], ptc["shot_slope"]
     tracker = FeatureTracker.from_sequence(seq)
     out["corners"] = float(np.mean([corner_count(tracker, img) for img in left]))
     pairs = [lk_pair_stats(tracker, a, b) for a, b in zip(left[:-1], left[1:], strict=True)]
@@ -267,6 +298,7 @@ def main(argv=None) -> int:
                             duration=(int(real_t[-1]) - int(real_t[0])) * 1e-9,
                             progress=False, overwrite=True)
             sim_seq = read_euroc(args.out / "render")
+            _, still0, _ = render_static(real_seq, real_t, config, args.out)
     except DataError as err:
         print(err, file=sys.stderr)
         return 2
@@ -282,6 +314,8 @@ def main(argv=None) -> int:
     h_sim0 = realism.intensity_histogram(sim0)
     stats_real = image_statistics(real_seq, real0, real1, h_real0, h_real1)
     stats_sim = image_statistics(sim_seq, sim0, sim1, h_real0, h_sim0)
+    stats_real |= noise_statistics(real0)
+    stats_sim |= noise_statistics(still0)
 
     errors = realism.imu_errors(real_seq.ground_truth, real_seq.imu,
                                 imu_calibration(config).noise, stage_seeds(args.seed)["imu"])
