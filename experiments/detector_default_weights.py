@@ -61,6 +61,7 @@ from uavcal_jax.detect.datasets import concat_datasets, load_dataset, split_ids
 from uavcal_jax.detect.default_weights import DEFAULT_DETECTOR_RUN, SHIPPED
 from uavcal_jax.detect.evaluate import evaluate_run
 from uavcal_jax.detect.run import RunPaths, export_run
+from uavcal_jax.detect.tile import TileConfig
 from uavcal_jax.detect.train import train
 from uavcal_jax.pipeline.detectors import load_network_detector
 from uavcal_jax.pipeline.run_config import DetectStageConfig
@@ -155,6 +156,14 @@ def held_out(args) -> tuple[str, SimConfig]:
                       start=TRAJ_START_S if traj else 0.0)
 
 
+def aerial_split(folder: Path, classes):
+    """The real aerial photos of ``folder`` (YOLO, in ``classes``) split by image into
+    ``(train, held_out)`` (:data:`AERIAL_VAL_FRACTION`, seed 0: ``detect_aerial.py``'s)."""
+    aerial = load_dataset(folder, "yolo", classes)
+    train_ids, held_out_ids = split_ids(aerial.image_ids, AERIAL_VAL_FRACTION, 0)
+    return aerial.subset(train_ids), aerial.subset(held_out_ids)
+
+
 def training_sets(args, folders, train_cfg):
     """``(train, validation, aerial held-out)`` sets: the rendered flights split by frame
     (``train_cfg.val_fraction``), the real aerial photos' fixed split (the training photos
@@ -164,16 +173,44 @@ def training_sets(args, folders, train_cfg):
     train_ids, val_ids = split_ids(rendered.image_ids, train_cfg.val_fraction,
                                    train_cfg.split_seed)
     parts, val_parts = [("sim", rendered.subset(train_ids))], [("sim", rendered.subset(val_ids))]
-    aerial_held_out = None
+    aerial_val = None
     if args.aerial is not None:
-        aerial = load_dataset(args.aerial, "yolo", classes)
-        a_train, a_val = split_ids(aerial.image_ids, AERIAL_VAL_FRACTION, 0)
-        parts += [(f"aerial_{i}", aerial.subset(a_train)) for i in range(args.aerial_repeats)]
-        aerial_held_out = aerial.subset(a_val)
-        val_parts.append(("aerial", aerial_held_out))
+        aerial_train, aerial_val = aerial_split(args.aerial, classes)
+        parts += [(f"aerial_{i}", aerial_train) for i in range(args.aerial_repeats)]
+        val_parts.append(("aerial", aerial_val))
     if args.negatives is not None:
         parts.append(("negatives", load_dataset(args.negatives, None, classes)))
-    return concat_datasets(parts), concat_datasets(val_parts), aerial_held_out
+    return concat_datasets(parts), concat_datasets(val_parts), aerial_val
+
+
+def score_sources(run: Path, flight, aerial, out: Path) -> dict:
+    """A detector run scored on each source, as ``eval.json`` holds them:
+
+    - ``rendered``: the held-out flight ``flight = (name, SimConfig, folder)``: COCO mAP;
+    - ``aerial`` and ``aerial_tiled``: the real aerial photos' held-out split (a data set, or
+      ``None`` to skip), the images letterboxed whole and sliced (``--tile``): COCO mAP;
+    - ``micro``: the real EuRoC frames of :data:`MICRO`, which show no target: detections per
+      frame at ``uavcal run``'s threshold (:func:`false_positives`).
+
+    Each mAP row carries the command that reproduces it."""
+    keys = ("map50", "map50_95", "per_class", "num_images", "num_boxes", "checkpoint_epoch")
+    name, cfg, folder = flight
+    rows = {"rendered": {**{k: v for k, v in evaluate_run(run, folder, "sim",
+                                                            out_dir=out / "rendered").items()
+                            if k in keys},
+                         "flight": {"name": name, **cfg.to_dict()},
+                         "command": f"uavcal detect eval RUN --data {folder} --format sim"}}
+    if aerial is not None:
+        for key, tile in (("aerial", None), ("aerial_tiled", TileConfig())):
+            result = evaluate_run(run, aerial, tile=tile, out_dir=out / key)
+            rows[key] = {**{k: v for k, v in result.items() if k in keys},
+                         "images": sorted(aerial.image_ids),
+                         "command": "python experiments/detect_sources.py --run RUN"}
+    frames = sorted((MICRO / "mav0" / "cam0" / "data").glob("*.png"))
+    if frames:
+        rows["micro"] = {**false_positives(run, frames),
+                         "command": f"uavcal run {MICRO} --json (the target: none)"}
+    return rows
 
 
 def false_positives(run: Path, frames: list[Path]) -> dict:
@@ -259,7 +296,7 @@ def main() -> None:
 
     # the preset, --epochs, then --set
     config = apply_overrides(apply_overrides(SHIPPED, {"train.epochs": args.epochs}), args.set)
-    dataset, val_set, aerial_held_out = training_sets(args, folders, config.train)
+    dataset, val_set, aerial_val = training_sets(args, folders, config.train)
     run = args.cache / "run"
     shutil.rmtree(run, ignore_errors=True)
     t1 = time.perf_counter()
@@ -279,26 +316,24 @@ def main() -> None:
     best = next((r for r in metrics["history"] if r["epoch"] == metrics["best_epoch"]), {})
     # the parameters stored as float16 (half the size), and scored as they ship
     stage = export_run(run, args.cache / "export", params_dtype=PARAMS_DTYPE)
-    test = evaluate_run(stage, test_folder, "sim")
-    evaluation = {k: test[k] for k in ("map50", "map50_95", "per_class", "num_images",
-                                       "num_boxes", "checkpoint_epoch", "interpolation")}
-    evaluation["flight"] = {"name": test_name, **test_cfg.to_dict()}
-    target = export_run(stage, args.out, extra={"eval.json": evaluation})
+    sources = score_sources(stage, (test_name, test_cfg, test_folder), aerial_val,
+                            args.cache / "eval")
+    target = export_run(stage, args.out, extra={"eval.json": sources})
     summary = {
-        "held_out_map50": test["map50"], "held_out_map50_95": test["map50_95"],
-        "held_out": {"flight": test_name, "frames": test["num_images"],
-                     "boxes": test["num_boxes"]},
+        **{f"{source}_{key}": value for source, row in sources.items()
+           for key, value in row.items() if key in ("map50", "map50_95", "per_frame")},
         "val_map50": best.get("map50"), "val_map50_95": best.get("map50_95"),
         "model": config.detector.model, "img_size": list(config.detector.img_size),
         "size_mb": round(_size_bytes(target) / 1e6, 3),
-        "flights": len(folders), "frames": len(dataset), "boxes": dataset.num_boxes,
+        "flights": len(folders), "images": len(dataset), "boxes": dataset.num_boxes,
         "epochs_run": len(metrics["history"]), "best_epoch": metrics["best_epoch"],
         "stopped_early": stopped_early,
         "simulate_s": round(t_sim, 1), "train_s": round(t_train, 1),
         "wall_s": round(time.perf_counter() - t0, 1), "out": str(target),
     }
     write_docs(args, "detector_default_weights", figures_table(summary),
-               anchor=f"the held-out flight {test_name}, never trained on")
+               anchor=f"the held-out flight {test_name} and the real aerial photos' held-out "
+                      "split, never trained on")
     print_json(summary)
 
 
