@@ -62,13 +62,12 @@ LOW_RESOLUTION: tuple[int, int] = (EUROC_RESOLUTION[0] // 2, EUROC_RESOLUTION[1]
 #: Stages with their own random stream, in :func:`stage_seeds`' order.
 STAGES = ("flight", "imu", "scene", "camera")
 #: EuRoC's VI-sensor camera effects beyond the defaults (``dataclasses.replace(config,
-#: **EUROC_CAMERA_PRESET)`` or ``--set auto_exposure=true vignetting=0.5``): its MT9V034s run
-#: auto-exposure and are global shutter (``line_delay_s`` stays 0); the AE's target and time
-#: constant are :mod:`uavcal_jax.sim.auto_exposure`'s, the vignetting exponent
-#: :mod:`uavcal_jax.sim.vignetting`'s. Measured on the static micro slice (noise curve,
-#: brightness, radial profile) with ``uavcal_jax.sim.sensor_fit``:
-#: ``python -c "from uavcal_jax.sim.sensor_fit import *; ..."`` as in ``tests/test_sim_camera``'s
-#: real-data tests. Off by default until the VIO tables are rerun with it.
+#: **EUROC_CAMERA_PRESET)``, or ``--set auto_exposure=true vignetting=1.1``): its MT9V034s
+#: run auto-exposure and are global shutter (``line_delay_s`` stays 0). The vignetting is
+#: measured on the static micro slice (``python experiments/camera_fit.py
+#: ../shared/data/euroc_v101_micro``, which also checks ``sim.sensor``'s noise constants); the
+#: AE's target is that slice's mean, its time constant typical (a static slice cannot show
+#: it): :mod:`uavcal_jax.sim.auto_exposure`. Off by default until the VIO tables are rerun.
 EUROC_CAMERA_PRESET: dict[str, Any] = {"auto_exposure": True, "vignetting": EUROC_VIGNETTING,
                                        "line_delay_s": 0.0}
 
@@ -139,7 +138,7 @@ class SimConfig:
         blur_samples: sub-exposures averaged for motion blur (1 = no blur); the camera's pose
             at each comes from the trajectory. Depth and target labels are at mid-exposure.
         vignetting: exponent ``p`` of the lens's ``cos(theta)^p`` falloff (0 = none; 4 = the
-            cos^4 law; EuRoC-like: :data:`EUROC_CAMERA_PRESET`), :mod:`uavcal_jax.sim.vignetting`.
+            cos^4 law; EuRoC's: :data:`EUROC_CAMERA_PRESET`), :mod:`uavcal_jax.sim.vignetting`.
         auto_exposure: exposure and gain follow the scene's brightness frame by frame
             (:mod:`uavcal_jax.sim.auto_exposure`; ``exposure_ms`` and ``gain`` are the first
             frame's), metered on cam0 and shared by both cameras.

@@ -6,20 +6,21 @@ cos^4 law; wide-angle designs and microlens arrays usually fall off less). With 
 renderer's unit-z rays ``(x, y, 1)`` (undistorted normalised coordinates, so the lens's
 distortion is accounted for), ``cos(theta) = 1 / sqrt(1 + x^2 + y^2)``.
 
-:data:`EUROC_VIGNETTING` is the EuRoC-like exponent. The micro slice's radial mean-intensity
-profile bounds it (the scene is confounded with the falloff, but not that much): the outer
-ring (undistorted radius 0.9-1.0, 4 % of the pixels) is 0.85-1.0 times the centre disc's
-brightness in both cameras, where cos^4 would give 0.28; see ``uavcal_jax.sim.config``'s
-preset for the command.
+:data:`EUROC_VIGNETTING` is EuRoC's, measured on the static micro slice's stereo pair
+(``python experiments/camera_fit.py ../shared/data/euroc_v101_micro``,
+:func:`uavcal_jax.sim.sensor_fit.stereo_vignetting`): p = 1.08 +- 0.07 over 141k matched
+pixels (0.9-1.5 on the image's halves and on near or far surfaces alone). One camera's mean
+image cannot give it: the scene's brightness varies across the image as much.
 """
 
 from __future__ import annotations
 
 __all__ = ["EUROC_VIGNETTING", "falloff"]
 
-#: EuRoC-like exponent ``p`` of ``cos(theta)^p``: about 0.8 of the centre's light in the
-#: corners of EuRoC's 752x480 lens (theta about 51 degrees there, distortion undone).
-EUROC_VIGNETTING = 0.5
+#: EuRoC's exponent ``p`` of ``cos(theta)^p`` (measured, above): 0.57 of the centre's light
+#: in the corners of its 752x480 images (theta 53 degrees there, distortion undone), 0.68 at
+#: the middle of the left and right edges.
+EUROC_VIGNETTING = 1.1
 
 
 def falloff(rx, ry, exponent: float):
