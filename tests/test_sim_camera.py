@@ -1,5 +1,7 @@
 """The simulator's camera model: exposure x gain, shot and read noise, motion blur, the ideal
-switch, against the model's own statistics, ray-cast sub-exposures and the real V1_01 frames."""
+switch, vignetting, auto-exposure and rolling shutter, against the model's own statistics,
+formulas, ray-cast sub-exposures and the real V1_01 frames; the noise-curve measurement
+(``sim.sensor_fit``) against synthetic frames of known noise."""
 
 from __future__ import annotations
 
@@ -16,10 +18,12 @@ from scipy.stats import norm
 from uavcal_jax.data import euroc_rig as rig
 from uavcal_jax.data.euroc_writer import depth_to_millimetres
 from uavcal_jax.geometry import camera as C
+from uavcal_jax.sim import auto_exposure as AE
 from uavcal_jax.sim import motion_blur as MB
 from uavcal_jax.sim import render as R
 from uavcal_jax.sim import sensor as SN
-from uavcal_jax.sim.config import SimConfig, sensor_model
+from uavcal_jax.sim import sensor_fit as SF
+from uavcal_jax.sim.config import EUROC_CAMERA_PRESET, SimConfig, sensor_model
 from uavcal_jax.sim.frames import (
     CameraEffects,
     camera_effects,
@@ -93,28 +97,61 @@ def _real_frames(cam: str) -> np.ndarray:
     return np.stack([cv2.imread(f, cv2.IMREAD_UNCHANGED) for f in files]).astype(np.float64)
 
 
+def test_noise_curve_recovers_a_known_shot_and_read_noise():
+    """Synthetic static frames (flat patches, Poisson shot noise, Gaussian read noise, 8-bit
+    rounding; drawn here, not by the simulator) give back their conversion gain and read
+    noise."""
+    rng = np.random.default_rng(0)
+    K, read_e = 0.02, 40.0  # DN per electron; electrons rms (0.8 DN)
+    levels = np.repeat(np.arange(25.0, 240.0, 20.0), 40)  # 11 patches of 40 columns
+    lam = np.broadcast_to(levels / K, (60, 50, levels.size))  # 60 frames, 50 rows
+    frames = np.clip(np.round(K * (rng.poisson(lam) + rng.normal(0.0, read_e, lam.shape))),
+                     0, 255)
+    for estimator in SF.ESTIMATORS:
+        curve = SF.noise_curve(frames, estimator=estimator, min_pixels=100)
+        assert curve.mean_dn.size == 11
+        fit = SF.fit_shot_read(curve)
+        np.testing.assert_allclose(fit.dn_per_electron, K, rtol=0.05)
+        np.testing.assert_allclose(fit.read_noise_electrons, read_e, rtol=0.15)
+        np.testing.assert_allclose(curve.std_dn, np.sqrt(K * levels[::40] + (K * read_e) ** 2
+                                                         + 1 / 12), rtol=0.05)
+    # a slow brightness drift (2 % over the frames) inflates the "std" estimator only
+    drift = frames * np.linspace(0.99, 1.01, 60)[:, None, None]
+    std = SF.noise_curve(drift, estimator="std", min_pixels=100).variance_dn2
+    diff = SF.noise_curve(drift, estimator="difference", min_pixels=100).variance_dn2
+    assert std[-1] > 1.2 * diff[-1]
+    np.testing.assert_allclose(diff, SF.noise_curve(frames, min_pixels=100).variance_dn2,
+                               rtol=0.03)
+
+
 @pytest.mark.realdata
 def test_default_conversion_gain_matches_real_v101_temporal_noise():
     """The micro slice stands still: consecutive-frame differences are the sensor's temporal
     noise, and their variance against the mean (photon transfer) has the default sensor's
-    slope, DN per electron."""
-    xs, ys = [], []
+    slope, DN per electron; the simulator's sensor, given the real mean image as its signal,
+    has the real noise curve within 10 %."""
+    curves, sim_std = [], []
+    model = sensor_model(SimConfig())
     for cam in ("cam0", "cam1"):
         ims = _real_frames(cam)
-        mean = ims.mean(axis=0)
-        var = (np.diff(ims, axis=0) ** 2).mean(axis=0) / 2.0
-        flat = np.hypot(*np.gradient(mean)) < 1.0  # vibration inflates textured pixels
-        for lo in range(30, 180, 10):
-            sel = (mean >= lo) & (mean < lo + 10) & (ims.max(axis=0) < 255) & flat
-            if sel.sum() >= 500:
-                xs.append(mean[sel].mean())
-                ys.append(np.median(var[sel]))
-    (slope, intercept), cov = np.polyfit(xs, ys, 1, cov=True)
-    model = sensor_model(SimConfig())
-    np.testing.assert_allclose(slope, model.dn_per_electron, rtol=0.1)
+        curves.append(SF.noise_curve(ims, lo=30, hi=180))
+        L = jnp.asarray(ims.mean(axis=0) / model.mean_dn(1.0), jnp.float32)
+        sim = np.stack([np.asarray(SN.sensor_image(L, jax.random.PRNGKey(i), model))
+                        for i in range(ims.shape[0])])
+        sim_curve = SF.noise_curve(sim, lo=30, hi=180)
+        sim_std.append(np.interp(curves[-1].mean_dn, sim_curve.mean_dn, sim_curve.std_dn))
+        print(f"{cam} noise curve (mean DN: real std / simulated std):",
+              " ".join(f"{m:.0f}: {r:.3f}/{s:.3f}" for m, r, s in zip(
+                  curves[-1].mean_dn, curves[-1].std_dn, sim_std[-1], strict=True)))
+    pooled = SF.NoiseCurve(*(np.concatenate([getattr(c, f) for c in curves])
+                             for f in ("mean_dn", "variance_dn2", "pixels")))
+    fit = SF.fit_shot_read(pooled)
+    np.testing.assert_allclose(fit.dn_per_electron, model.dn_per_electron, rtol=0.1)
     # the dark floor: read noise plus quantisation, within two standard errors of the fit
     floor = (model.dn_per_electron * model.read_noise_electrons) ** 2 + 1.0 / 12.0
-    assert abs(floor - intercept) < 2.0 * np.sqrt(cov[1, 1]), (floor, intercept)
+    assert abs(floor - fit.intercept_dn2) < 2.0 * fit.intercept_se, (floor, fit.intercept_dn2)
+    real_std = np.concatenate([c.std_dn for c in curves])
+    np.testing.assert_allclose(np.concatenate(sim_std), real_std, rtol=0.1)
 
 
 @pytest.mark.realdata
@@ -290,3 +327,143 @@ def test_effects_off_is_the_ideal_render_and_noise_is_per_frame():
     near_half = np.abs(mapped - np.floor(mapped) - 0.5) < 1e-3
     np.testing.assert_array_equal(plain[~near_half], reference[~near_half])
     assert np.all(np.abs(plain.astype(float) - reference) <= 1)
+
+
+# --------------------------------------------------------------------------------------------
+# vignetting, auto-exposure, rolling shutter
+# --------------------------------------------------------------------------------------------
+
+
+def _frame_renderer_inputs(lens, frames=1):
+    """A scene, and (bundles, lenses, T_WC, t, rel) for :func:`make_frame_renderer` with
+    ``lens`` as both cameras, looking along +x from 1.5 m up, ``frames`` times."""
+    path = np.stack([np.linspace(-1, 1, 50), np.zeros(50), np.full(50, 1.5)], axis=1)
+    scn = make_scene(path.min(0), path.max(0), seed=1, path_points=path)
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    T[:3, 3] = (0.0, 0.0, 1.5)
+    bundle = jax.tree_util.tree_map(jnp.asarray, R.ray_bundle(lens))
+    T_WC = jnp.asarray(np.broadcast_to(T, (frames, 4, 4)), jnp.float32)
+    rel = jnp.asarray(np.broadcast_to(np.eye(4), (frames, 1, 4, 4)), jnp.float32)
+    return scn, (bundle, bundle, lens, lens, T_WC, T_WC, jnp.zeros(frames), rel, rel)
+
+
+def test_vignetting_and_exposure_settings_scale_the_frame_as_their_formulas():
+    """Noise off: the vignetted frame is the plain one times cos(theta)^p (theta the pixel
+    ray's angle to the optical axis, here atan(r / f) with an undistorted lens), down to
+    cos^4(21.5 deg) = 0.75 at the corners; per-frame auto-exposure settings scale it by
+    exposure x gain."""
+    scn, args = _frame_renderer_inputs(LENS, frames=2)
+    n = int(scn.targets.class_id.shape[0])
+    sensor = SN.SensorModel(exposure_s=2e-3)
+    key, frame = jax.random.PRNGKey(0), jnp.arange(2, dtype=jnp.int32)
+    # frame 0 at the sensor's own settings, frame 1 at twice the exposure and 1.5x the gain
+    settings = jnp.asarray([[2e-3, 1.0], [4e-3, 1.5]], jnp.float32)
+    ae = make_frame_renderer("gray", n, CameraEffects(sensor=sensor, auto_exposure=True))(
+        scn, *args, frame, key, settings)[0][0]
+    plain = np.asarray(ae[0], np.float64)
+    vig = np.asarray(make_frame_renderer("gray", n, CameraEffects(sensor=sensor, vignetting=4.0))(
+        scn, *args, frame, key)[0][0][0], np.float64)
+    v, u = np.mgrid[0:48, 0:64]
+    theta = np.arctan(np.hypot(u - 31.5, v - 23.5) / 100.0)
+    expected = plain * np.cos(theta) ** 4
+    ok = (plain > 20) & (plain < 255)
+    assert ok.mean() > 0.5
+    assert np.all(np.abs(vig - expected)[ok] <= 1.0)  # both rounded to whole DN
+    corner = np.cos(np.arctan(np.hypot(31.5, 23.5) / 100.0)) ** 4
+    np.testing.assert_allclose(corner, 0.750, atol=1e-3)
+    assert np.all(np.abs(vig[0, 0] - corner * plain[0, 0]) <= 1.0)
+    # the per-frame settings scale the frame by exposure x gain
+    bright = np.asarray(ae[1], np.float64)
+    sel = plain < 80
+    assert np.all(np.abs(bright[sel] - 3.0 * plain[sel]) <= 2.0)
+
+
+def test_auto_exposure_recovers_a_brightness_step_with_its_time_constant():
+    """A settled AE loop: the scene darkens 2x; frame k's exposure comes from frame k-1, so
+    the log brightness error decays as exp(-t / tau) from the frame after the step (exactly,
+    unsaturated); a 3x brighter scene (partly clipped) converges too, and a very dark one
+    runs the exposure to its limit and then the gain."""
+    model = SN.SensorModel(exposure_s=5e-3)
+    ae = AE.AutoExposure()
+    dt, tau = 0.05, ae.time_constant_s
+    L0 = ae.target_dn / model.mean_dn(1.0)  # the target at 5 ms, gain 1
+    rng = np.random.default_rng(0)
+    texture = rng.uniform(0.5, 1.5, (20, 30))
+    texture /= texture.mean()
+
+    def run(scale, frames=60, step=10):
+        metering = np.stack([L0 * texture * (1.0 if k < step else scale)
+                             for k in range(frames)])
+        exposure, gain = AE.exposure_schedule(metering, dt, model, ae)
+        dn = np.array([AE.metered_dn(m, e, g, model)
+                       for m, e, g in zip(metering, exposure, gain, strict=True)])
+        return exposure, gain, dn
+
+    exposure, gain, dn = run(0.5)
+    np.testing.assert_allclose(dn[:10], ae.target_dn, rtol=1e-9)  # settled before the step
+    err = np.log(ae.target_dn / dn)
+    np.testing.assert_allclose(err[10], np.log(2.0), rtol=1e-9)
+    frames_per_tau = round(tau / dt)  # 3 frames
+    np.testing.assert_allclose(err[10 + frames_per_tau], np.exp(-1.0) * np.log(2.0),
+                               rtol=1e-6)
+    assert np.all(np.diff(err[10:]) < 0) and err[-1] < 1e-3
+    np.testing.assert_allclose(exposure[-1], 10e-3, rtol=1e-3)  # twice as long, still gain 1
+    assert np.all(gain == 1.0)
+    # brighter: clipped metering slows the first frames, then it settles at the target
+    _, _, dn_up = run(3.0)
+    assert dn_up[10] > 200 and abs(dn_up[-1] - ae.target_dn) < 0.01 * ae.target_dn
+    # darker than the longest exposure reaches: the gain takes over, capped at MAX_GAIN
+    exposure_dark, gain_dark, dn_dark = run(0.1)
+    assert exposure_dark[-1] == pytest.approx(ae.max_exposure_s)
+    assert gain_dark[-1] == pytest.approx(ae.max_gain)
+    assert 0.5 * ae.target_dn < dn_dark[-1] < ae.target_dn
+    # the EuRoC preset is a valid configuration and reaches the frame renderer
+    euroc = SimConfig(**EUROC_CAMERA_PRESET)
+    euroc.validate()
+    effects = camera_effects(euroc)
+    assert effects.auto_exposure and effects.vignetting > 0 and effects.line_delay_s == 0
+    assert camera_effects(SimConfig()) == CameraEffects(
+        sensor=sensor_model(SimConfig()), noise=True, blur_samples=5)  # all off by default
+
+
+def _sliding(speed: float) -> Trajectory:
+    """A body moving along world x at ``speed`` m/s, axes = world's (camera looks along +z)."""
+    t = np.linspace(0.0, 0.2, 201)
+    q = np.zeros((len(t), 4))
+    q[:, 0] = 1.0
+    p = np.zeros((len(t), 3))
+    p[:, 0] = speed * t
+    return Trajectory.from_samples(t, p, q)
+
+
+def test_rolling_shutter_shears_a_vertical_edge_and_is_global_at_zero_delay():
+    """Moving sideways at v past a plane at depth d, row r of a rolling shutter is exposed
+    (r - (H - 1)/2) * delay after the middle row, so a vertical edge shifts by -f v t_r / d
+    pixels in it; with no delay the per-row warp is the global shutter's exactly."""
+    image = np.zeros((48, 64))
+    image[:, 32:] = 1.0
+    speed, depth, delay, f = 2.0, 2.0, 1e-3, 100.0
+    traj, t_ns, span = _sliding(speed), np.array([100_000_000]), (0, 200_000_000)
+    b = R.ray_bundle(LENS)
+
+    def warp(rel):
+        return np.asarray(MB.blur_image(jnp.asarray(image, jnp.float32), jnp.full((48, 64), depth),
+                                        jnp.asarray(b.rx), jnp.asarray(b.ry), jnp.asarray(rel),
+                                        LENS))
+
+    rolling = sub_exposure_poses(traj, t_ns, np.eye(4), 5e-3, 1, span, delay, 48)[0]
+    assert rolling.shape == (1, 48, 4, 4)
+    out = warp(rolling)
+    edge = (1.0 - out).sum(axis=1) - 0.5  # where each row crosses 0.5 (31.5 unshifted)
+    t_row = (np.arange(48) - 23.5) * delay
+    np.testing.assert_allclose(edge, 31.5 - f * speed * t_row / depth, atol=0.02)
+    assert edge[0] - edge[-1] == pytest.approx(f * speed * 47 * delay / depth, abs=0.03)
+    # zero delay (a delay that rounds to 0 ns): per-row poses all equal the global one, and
+    # the per-row warp gives the global shutter's frame, with blur
+    still = sub_exposure_poses(traj, t_ns, np.eye(4), 5e-3, 3, span, 1e-13, 48)[0]
+    glob = sub_exposure_poses(traj, t_ns, np.eye(4), 5e-3, 3, span)[0]
+    assert still.shape == (3, 48, 4, 4)
+    np.testing.assert_array_equal(still, np.broadcast_to(glob[:, None], still.shape))
+    np.testing.assert_array_equal(warp(still), warp(glob))
+    assert np.any(warp(glob) != image)  # the blur is there

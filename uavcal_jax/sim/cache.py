@@ -10,6 +10,7 @@ sequence behind, and a rerun renders only what is missing.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import shutil
@@ -23,8 +24,11 @@ from uavcal_jax.sim.simulate import simulate
 __all__ = ["cached_simulation", "config_tag", "trajectory_span"]
 
 
-#: SimConfig fields added after caches were tagged, left out of the tag while ``None``.
-_LATER_FIELDS = ("imu_rotation_deg",)
+#: SimConfig fields added after caches were tagged, left out of the tag while at their
+#: defaults (off).
+_LATER_FIELDS = ("imu_rotation_deg", "vignetting", "auto_exposure", "ae_target_dn",
+                 "ae_time_constant_s", "line_delay_s")
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SimConfig)}
 
 
 def config_tag(config: SimConfig) -> str:
@@ -35,7 +39,7 @@ def config_tag(config: SimConfig) -> str:
     if fields.get("trajectory"):
         fields["trajectory"] = Path(fields["trajectory"]).name
     for later in _LATER_FIELDS:  # added since caches were written: unset, they keep the tag
-        if fields.get(later) is None:
+        if fields.get(later) == _DEFAULTS[later]:
             fields.pop(later, None)
     text = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:8]

@@ -28,15 +28,19 @@ from uavcal_jax.data.euroc_rig import (
     euroc_calibration,
 )
 from uavcal_jax.data.sequence import CameraCalibration
+from uavcal_jax.sim import auto_exposure as ae
 from uavcal_jax.sim.mounting import pitched_rig
 from uavcal_jax.sim.sensor import SensorModel
+from uavcal_jax.sim.vignetting import EUROC_VIGNETTING
 
 __all__ = [
     "BODY_FRAMES",
     "CAMERAS",
     "COLORS",
+    "EUROC_CAMERA_PRESET",
     "LOW_RESOLUTION",
     "SimConfig",
+    "auto_exposure_settings",
     "camera_calibrations",
     "imu_rotation",
     "scale_calibration",
@@ -57,6 +61,15 @@ BODY_FRAMES = ("euroc", "flu")
 LOW_RESOLUTION: tuple[int, int] = (EUROC_RESOLUTION[0] // 2, EUROC_RESOLUTION[1] // 2)
 #: Stages with their own random stream, in :func:`stage_seeds`' order.
 STAGES = ("flight", "imu", "scene", "camera")
+#: EuRoC's VI-sensor camera effects beyond the defaults (``dataclasses.replace(config,
+#: **EUROC_CAMERA_PRESET)``, or ``--set auto_exposure=true vignetting=1.1``): its MT9V034s
+#: run auto-exposure and are global shutter (``line_delay_s`` stays 0). The vignetting is
+#: measured on the static micro slice (``python experiments/camera_fit.py
+#: ../shared/data/euroc_v101_micro``, which also checks ``sim.sensor``'s noise constants); the
+#: AE's target is that slice's mean, its time constant typical (a static slice cannot show
+#: it): :mod:`uavcal_jax.sim.auto_exposure`. Off by default until the VIO tables are rerun.
+EUROC_CAMERA_PRESET: dict[str, Any] = {"auto_exposure": True, "vignetting": EUROC_VIGNETTING,
+                                       "line_delay_s": 0.0}
 
 
 @dataclass(frozen=True)
@@ -124,6 +137,16 @@ class SimConfig:
         sensor_noise: shot noise, read noise (and the full-well clip) on the electrons.
         blur_samples: sub-exposures averaged for motion blur (1 = no blur); the camera's pose
             at each comes from the trajectory. Depth and target labels are at mid-exposure.
+        vignetting: exponent ``p`` of the lens's ``cos(theta)^p`` falloff (0 = none; 4 = the
+            cos^4 law; EuRoC's: :data:`EUROC_CAMERA_PRESET`), :mod:`uavcal_jax.sim.vignetting`.
+        auto_exposure: exposure and gain follow the scene's brightness frame by frame
+            (:mod:`uavcal_jax.sim.auto_exposure`; ``exposure_ms`` and ``gain`` are the first
+            frame's), metered on cam0 and shared by both cameras.
+        ae_target_dn: the auto-exposure's target mean intensity, DN.
+        ae_time_constant_s: the auto-exposure's time constant, seconds.
+        line_delay_s: rolling shutter: row ``r`` is exposed ``line_delay_s`` after row
+            ``r - 1`` (0 = global shutter, as EuRoC's); the frame's timestamp, depth and labels
+            are the middle row's.
         batch_size: frames rendered per jitted call (speed/memory only, not the output).
         png_workers: threads encoding PNGs (speed only).
     """
@@ -150,12 +173,18 @@ class SimConfig:
     gain: float = 1.0
     sensor_noise: bool = True
     blur_samples: int = 5
+    vignetting: float = 0.0
+    auto_exposure: bool = False
+    ae_target_dn: float = ae.AE_TARGET_DN
+    ae_time_constant_s: float = ae.AE_TIME_CONSTANT_S
+    line_delay_s: float = 0.0
     batch_size: int = 8
     png_workers: int = 2
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "resolution", tuple(int(v) for v in self.resolution))
-        for name in ("start", "duration", "camera_rate_hz", "imu_rate_hz", "exposure_ms", "gain"):
+        for name in ("start", "duration", "camera_rate_hz", "imu_rate_hz", "exposure_ms", "gain",
+                     "vignetting", "ae_target_dn", "ae_time_constant_s", "line_delay_s"):
             object.__setattr__(self, name, float(getattr(self, name)))
         if self.trajectory is not None:
             object.__setattr__(self, "trajectory", os.fspath(self.trajectory))
@@ -200,6 +229,15 @@ class SimConfig:
             raise ValueError(f"gain must be positive, got {self.gain}")
         if self.blur_samples < 1:
             raise ValueError(f"blur_samples must be >= 1, got {self.blur_samples}")
+        if not (np.isfinite(self.vignetting) and self.vignetting >= 0):
+            raise ValueError(f"vignetting must be >= 0 (a cos^p exponent), got {self.vignetting}")
+        if not (0 < self.ae_target_dn < 255 and self.ae_time_constant_s > 0):
+            raise ValueError("ae_target_dn must be in (0, 255) DN and ae_time_constant_s > 0, "
+                             f"got {self.ae_target_dn}, {self.ae_time_constant_s}")
+        if not (np.isfinite(self.line_delay_s) and self.line_delay_s >= 0
+                and self.line_delay_s * self.resolution[1] <= 1.0 / self.camera_rate_hz):
+            raise ValueError("line_delay_s must be >= 0 and its readout (x rows) within the "
+                             f"frame period, got {self.line_delay_s}")
         if self.imu_offset is not None and not (
                 len(self.imu_offset) == 6 and np.all(np.isfinite(self.imu_offset))):
             raise ValueError("imu_offset must be 6 finite numbers (gyro rad/s xyz, accel m/s^2 "
@@ -268,6 +306,13 @@ def camera_calibrations(config: SimConfig) -> dict[str, CameraCalibration]:
 def sensor_model(config: SimConfig) -> SensorModel:
     """The configuration's photometric settings (exposure, gain; the sensor's constants)."""
     return SensorModel(exposure_s=config.exposure_ms * 1e-3, gain=config.gain)
+
+
+def auto_exposure_settings(config: SimConfig) -> ae.AutoExposure:
+    """The configuration's auto-exposure controller (target, time constant; the sensor's
+    exposure and gain limits)."""
+    return ae.AutoExposure(target_dn=config.ae_target_dn,
+                           time_constant_s=config.ae_time_constant_s)
 
 
 def stage_seeds(seed: int) -> dict[str, int]:

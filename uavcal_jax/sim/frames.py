@@ -15,7 +15,12 @@ The frames go through EuRoC's camera (:class:`CameraEffects`, on unless
 (:mod:`uavcal_jax.sim.motion_blur`), then exposure x gain, shot and read noise and 8-bit
 quantisation (:mod:`uavcal_jax.sim.sensor`), the noise keyed by the camera stage's seed, the
 frame's index and the camera. Depth and labels are those of the mid-exposure pose, the frame's
-timestamp.
+timestamp. Options (``SimConfig``): vignetting (:mod:`uavcal_jax.sim.vignetting`) on the
+radiance before the sensor; auto-exposure (:mod:`uavcal_jax.sim.auto_exposure`), each frame's
+exposure and gain set from the earlier frames' metering (cam0's, low-resolution renders in a
+first pass) and applied to both cameras, the blur following each frame's exposure; a rolling
+shutter (``line_delay_s``), each row warped to its own pose like the blur's sub-exposures
+(:mod:`uavcal_jax.sim.motion_blur`; the timestamp is the middle row's).
 
 Frames are rendered in fixed-size batches by one jitted function (compiled once; the last
 batch is padded); the next batch is dispatched before this one is written, so PNG encoding on
@@ -24,6 +29,7 @@ the writer's threads overlaps rendering.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass
@@ -38,8 +44,8 @@ from uavcal_jax.data.sequence import CameraCalibration
 from uavcal_jax.data.targets import TargetLabels, TargetTracks
 from uavcal_jax.geometry import camera as camera_model
 from uavcal_jax.progress import progress as progress_bar
-from uavcal_jax.sim import motion_blur, render, scene, sensor
-from uavcal_jax.sim.config import CAMERAS, SimConfig, sensor_model
+from uavcal_jax.sim import auto_exposure, motion_blur, render, scene, sensor, vignetting
+from uavcal_jax.sim.config import CAMERAS, SimConfig, auto_exposure_settings, sensor_model
 from uavcal_jax.sim.follow_targets import follow_request
 from uavcal_jax.sim.scene_build import make_scene
 from uavcal_jax.sim.sensor import SensorModel
@@ -80,11 +86,19 @@ class CameraEffects:
             (``round(255 L)``).
         noise: shot and read noise (with ``sensor``).
         blur_samples: sub-exposures averaged for motion blur (1 = none).
+        vignetting: exponent of the ``cos^p`` falloff (0 = none).
+        auto_exposure: per-frame exposure and gain (the renderer's ``settings``) replace
+            ``sensor``'s.
+        line_delay_s: rolling shutter's delay between rows, seconds (0 = global shutter); the
+            sub-exposure poses are then one per row.
     """
 
     sensor: SensorModel | None = None
     noise: bool = False
     blur_samples: int = 1
+    vignetting: float = 0.0
+    auto_exposure: bool = False
+    line_delay_s: float = 0.0
 
 
 def camera_effects(config: SimConfig) -> CameraEffects:
@@ -92,14 +106,19 @@ def camera_effects(config: SimConfig) -> CameraEffects:
     if config.ideal_camera:
         return CameraEffects()
     return CameraEffects(sensor=sensor_model(config), noise=bool(config.sensor_noise),
-                         blur_samples=int(config.blur_samples))
+                         blur_samples=int(config.blur_samples),
+                         vignetting=float(config.vignetting),
+                         auto_exposure=bool(config.auto_exposure),
+                         line_delay_s=float(config.line_delay_s))
 
 
 @functools.lru_cache(maxsize=8)
 def make_frame_renderer(color: str, n_targets: int, effects: CameraEffects = CameraEffects()):
     """A jitted ``fn(scene, bundle0, bundle1, cam0, cam1, T_WC0 (B,4,4), T_WC1 (B,4,4),
-    t (B,), T_CmCs0 (B,S,4,4), T_CmCs1 (B,S,4,4), frame (B,) int32, key)`` returning per
-    camera ``(image uint8 (B,H,W[,3]), depth uint16 mm (B,H,W), boxes (B,n,4), visible (B,n))``.
+    t (B,), T_CmCs0 (B,S,4,4), T_CmCs1 (B,S,4,4), frame (B,) int32, key, settings=None)``
+    returning per camera ``(image uint8 (B,H,W[,3]), depth uint16 mm (B,H,W), boxes (B,n,4),
+    visible (B,n))``. With a rolling shutter ``T_CmCsN`` are (B,S,H,4,4), one pose per row;
+    with auto-exposure ``settings`` is (B, 2): each frame's exposure (s) and gain.
 
     ``bundleN`` is :func:`uavcal_jax.sim.render.ray_bundle` of camera N and ``camN`` its
     lens (arguments, not baked-in constants). Frames are rendered at mid-exposure by
@@ -110,30 +129,43 @@ def make_frame_renderer(color: str, n_targets: int, effects: CameraEffects = Cam
     it falls in. Quantisation happens on the device, so only uint8 / uint16 images are
     transferred. Cached: simulations in one process share the compiled function."""
 
-    def expose(image, depth, bundle, cam, rel, keys):
+    def expose(image, depth, bundle, cam, rel, keys, settings):
         if effects.sensor is None:
             return sensor.ideal_image(image)
-        if effects.blur_samples > 1:
+        if effects.blur_samples > 1 or effects.line_delay_s > 0:
             image = jax.lax.map(lambda a: motion_blur.blur_image(
                 a[0], a[1], bundle.rx, bundle.ry, a[2], cam), (image, depth, rel))
+        if effects.vignetting:
+            v = vignetting.falloff(bundle.rx, bundle.ry, effects.vignetting).reshape(
+                image.shape[1:3])
+            image = image * (v[..., None] if image.ndim == 4 else v)
+        if effects.auto_exposure:
+            def one_frame(img, k, s):
+                model = dataclasses.replace(effects.sensor, exposure_s=s[0], gain=s[1])
+                if effects.noise:
+                    return sensor.sensor_image(img, k, model)
+                return jnp.clip(jnp.round(model.mean_dn(img)), 0, sensor.DN_MAX).astype(
+                    jnp.uint8)
+            return jax.vmap(one_frame)(image, keys, settings)
         if effects.noise:
             return jax.vmap(lambda img, k: sensor.sensor_image(img, k, effects.sensor))(
                 image, keys)
         mean = effects.sensor.mean_dn(image)
         return jnp.clip(jnp.round(mean), 0, sensor.DN_MAX).astype(jnp.uint8)
 
-    def one_camera(scn, bundle, cam, T_WC, t, rel, keys):
+    def one_camera(scn, bundle, cam, T_WC, t, rel, keys, settings):
         out = render.render_batch(scn, None, T_WC, t, color=color, rays=bundle)
-        img8 = expose(out.image, out.depth, bundle, cam, rel, keys)
+        img8 = expose(out.image, out.depth, bundle, cam, rel, keys, settings)
         depth_mm = depth_to_millimetres(out.depth, jnp)
         boxes, visible = target_boxes(out.object_id, n_targets)
         return img8, depth_mm, boxes, visible
 
-    def batch(scn, bundle0, bundle1, cam0, cam1, T0, T1, t, rel0, rel1, frame, key):
+    def batch(scn, bundle0, bundle1, cam0, cam1, T0, T1, t, rel0, rel1, frame, key,
+              settings=None):
         keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(frame)
         keys0, keys1 = (jax.vmap(lambda k, c=c: jax.random.fold_in(k, c))(keys) for c in (0, 1))
-        return (one_camera(scn, bundle0, cam0, T0, t, rel0, keys0),
-                one_camera(scn, bundle1, cam1, T1, t, rel1, keys1))
+        return (one_camera(scn, bundle0, cam0, T0, t, rel0, keys0, settings),
+                one_camera(scn, bundle1, cam1, T1, t, rel1, keys1, settings))
 
     return jax.jit(batch)
 
@@ -145,14 +177,41 @@ def _target_info(scn, t_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[
     return class_id, poses[..., :3, 3].astype(np.float64), scene.target_class_names(scn)
 
 
-def sub_exposure_poses(traj, cam_t_ns: np.ndarray, T_BS: np.ndarray, exposure_s: float,
-                       samples: int, t_span_ns: tuple[int, int]) -> np.ndarray:
+def sub_exposure_poses(traj, cam_t_ns: np.ndarray, T_BS: np.ndarray,
+                       exposure_s: float | np.ndarray, samples: int,
+                       t_span_ns: tuple[int, int], line_delay_s: float = 0.0,
+                       rows: int = 1) -> np.ndarray:
     """(N, S, 4, 4) float64 ``T_CmCs``: camera ``T_BS``'s pose at the ``S`` sub-exposure
-    midpoints of each frame (:func:`~uavcal_jax.sim.motion_blur.exposure_times`, clamped to
-    ``t_span_ns``) relative to its mid-exposure pose, along the trajectory."""
+    midpoints of each frame (:func:`~uavcal_jax.sim.motion_blur.exposure_times`, exposure in
+    seconds, one or (N,); clamped to ``t_span_ns``) relative to its mid-exposure pose, along
+    the trajectory. With a rolling shutter (``line_delay_s > 0``) (N, S, rows, 4, 4): each
+    row's own (:func:`~uavcal_jax.sim.motion_blur.row_times`)."""
     t_sub = motion_blur.exposure_times(cam_t_ns, exposure_s, samples, *t_span_ns)
+    if line_delay_s > 0:
+        t_sub = motion_blur.row_times(t_sub, rows, line_delay_s, *t_span_ns)
     T_WC_sub = body_poses(traj, t_sub.reshape(-1)).reshape(*t_sub.shape, 4, 4) @ T_BS
-    return motion_blur.relative_poses(body_poses(traj, cam_t_ns) @ T_BS, T_WC_sub)
+    n = t_sub.shape[0]
+    return motion_blur.relative_poses(body_poses(traj, cam_t_ns) @ T_BS,
+                                      T_WC_sub.reshape(n, -1, 4, 4)).reshape(T_WC_sub.shape)
+
+
+def _metering(scn, lens: camera_model.PinholeRadtan, T_WC: np.ndarray, t_rel: np.ndarray,
+              color: str, vignetting_exponent: float, batch: int) -> np.ndarray:
+    """(N, h, w[, 3]) the auto-exposure's metering images: radiance rendered at
+    :data:`~uavcal_jax.sim.auto_exposure.METERING_SCALE` of ``lens``'s size at the frames'
+    poses ``T_WC`` (N, 4, 4), vignetted."""
+    small = lens.scaled(auto_exposure.METERING_SCALE)
+    bundle = jax.tree_util.tree_map(jnp.asarray, render.ray_bundle(small))
+    v = np.asarray(vignetting.falloff(bundle.rx, bundle.ry, vignetting_exponent)).reshape(
+        small.height, small.width)
+    out = []
+    for k in range(0, T_WC.shape[0], batch):
+        img = render.render_batch(scn, None, jnp.asarray(T_WC[k:k + batch], jnp.float32),
+                                  jnp.asarray(t_rel[k:k + batch], jnp.float32), color=color,
+                                  rays=bundle).image
+        out.append(np.asarray(img))
+    image = np.concatenate(out)
+    return image * (v[..., None] if image.ndim == 4 else v)
 
 
 def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
@@ -182,11 +241,6 @@ def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
     T_WB = body_poses(traj, cam_t_ns)
     T_WC = {name: T_WB @ calibs[name].T_BS for name in CAMERAS}
     effects = camera_effects(config)
-    S = effects.blur_samples
-    span = (int(imu_t_ns[0]), int(imu_t_ns[-1]))
-    T_CmCs = {name: (sub_exposure_poses(traj, cam_t_ns, calibs[name].T_BS,
-                                        effects.sensor.exposure_s, S, span) if S > 1
-                     else np.broadcast_to(np.eye(4), (n, 1, 4, 4))) for name in CAMERAS}
 
     lo, hi = traj.bounds()
     path_t = traj.times(10.0)
@@ -202,6 +256,30 @@ def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
     key = jax.random.PRNGKey(camera_seed)
     dtype = jnp.float32  # the renderer works in float32
 
+    S = effects.blur_samples
+    span = (int(imu_t_ns[0]), int(imu_t_ns[-1]))
+    settings = None  # (N, 2) per-frame exposure (s) and gain with auto-exposure
+    exposure = None if effects.sensor is None else effects.sensor.exposure_s
+    if effects.auto_exposure:
+        metering = _metering(scn, camera_model.from_calibration(calibs[CAMERAS[0]]),
+                             T_WC[CAMERAS[0]], t_rel, config.color, effects.vignetting,
+                             config.batch_size)
+        exposure, gain = auto_exposure.exposure_schedule(
+            metering, np.diff(cam_t_ns) * 1e-9, effects.sensor, auto_exposure_settings(config))
+        settings = np.stack([exposure, gain], axis=1)
+    image_rows = calibs[CAMERAS[0]].resolution[1]
+
+    def rel_poses(name, idx):
+        """Sub-exposure (and row) poses of frames ``idx``."""
+        e = exposure if np.ndim(exposure) == 0 else exposure[idx]
+        return sub_exposure_poses(traj, cam_t_ns[idx], calibs[name].T_BS, e, S, span,
+                                  effects.line_delay_s, image_rows)
+
+    # global shutter: all frames' poses at once; rolling: a batch's at a time (one per row)
+    T_CmCs = {name: (rel_poses(name, np.arange(n)) if S > 1
+                     else np.broadcast_to(np.eye(4), (n, 1, 4, 4))) for name in CAMERAS} \
+        if effects.line_delay_s == 0 else None
+
     for name in CAMERAS:
         writer.add_image_stream(name, calibs[name], comment=f"uavcal-jax simulated {name} "
                                 f"(EuRoC VI-Sensor {name} calibration)")
@@ -215,10 +293,12 @@ def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
 
     def batch_args(k):
         idx = np.minimum(np.arange(k * B, (k + 1) * B), n - 1)  # pad with the last frame
+        rel = [T_CmCs[name][idx] if T_CmCs is not None else rel_poses(name, idx)
+               for name in CAMERAS]
         return (*lenses, *(jnp.asarray(T_WC[name][idx], dtype) for name in CAMERAS),
-                jnp.asarray(t_rel[idx], dtype),
-                *(jnp.asarray(T_CmCs[name][idx], dtype) for name in CAMERAS),
-                jnp.asarray(idx, jnp.int32), key)
+                jnp.asarray(t_rel[idx], dtype), *(jnp.asarray(r, dtype) for r in rel),
+                jnp.asarray(idx, jnp.int32), key,
+                None if settings is None else jnp.asarray(settings[idx], dtype))
 
     fn = make_frame_renderer(config.color, n_targets, effects)
     compiled = fn.lower(scn, bundles[0], bundles[1], *batch_args(0)).compile()
@@ -265,6 +345,11 @@ def render_frames(config: SimConfig, traj, imu_t_ns: np.ndarray,
             "ideal": effects.sensor is None,
             "sensor": None if effects.sensor is None else effects.sensor.to_dict(),
             "noise": effects.noise, "blur_samples": effects.blur_samples,
+            "vignetting": effects.vignetting, "line_delay_s": effects.line_delay_s,
+            "auto_exposure": None if settings is None else {
+                "settings": dataclasses.asdict(auto_exposure_settings(config)),
+                "exposure_ms": np.round(settings[:, 0] * 1e3, 4).tolist(),
+                "gain": np.round(settings[:, 1], 4).tolist()},
             "blur": "mid-exposure render warped to each sub-exposure pose by its depth"
                     if effects.blur_samples > 1 else None,
             "noise_seed": camera_seed if effects.noise else None},

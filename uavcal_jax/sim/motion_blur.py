@@ -15,6 +15,14 @@ pixels of motion, which fails only along depth edges. The scene's moving targets
 by the camera's motion, not by their own. Samples falling outside the image take the nearest
 edge pixel. ``tests/test_sim_camera.py`` compares the result with the mean of ``S`` ray-cast
 renders.
+
+Rolling shutter. A rolling-shutter sensor exposes row ``r`` ``line_delay`` seconds after row
+``r - 1``, so each row sees the scene from its own pose. The same warp gives it: row ``r``'s
+sub-exposure poses are taken at its own times (:func:`row_times`; the frame's timestamp is
+the middle row's, where the depth and the labels are rendered) and each pixel is warped with
+its row's pose (``T_CmCs`` per row in :func:`blur_image`): one render per frame whatever the
+delay, the same approximation as the blur (exact for rotation), and per-row rather than
+per-band poses, so no band seams.
 """
 
 from __future__ import annotations
@@ -25,17 +33,30 @@ import numpy as np
 
 from uavcal_jax.geometry import camera as camera_model
 
-__all__ = ["blur_image", "exposure_times", "relative_poses"]
+__all__ = ["blur_image", "exposure_times", "relative_poses", "row_times"]
 
 
-def exposure_times(t_ns: np.ndarray, exposure_s: float, samples: int,
+def exposure_times(t_ns: np.ndarray, exposure_s: float | np.ndarray, samples: int,
                    t_min_ns: int | None = None, t_max_ns: int | None = None) -> np.ndarray:
     """(N, S) int64 ns: midpoints of ``S`` equal parts of ``[t - exposure/2, t + exposure/2]``
-    for each frame time ``t`` (N,), clamped to ``[t_min_ns, t_max_ns]`` when given (the
-    trajectory's span: the first and last frames' exposures may reach past it)."""
+    for each frame time ``t`` (N,) and exposure (seconds, one or (N,)), clamped to
+    ``[t_min_ns, t_max_ns]`` when given (the trajectory's span: the first and last frames'
+    exposures may reach past it)."""
     offsets = (np.arange(samples) + 0.5) / samples - 0.5  # in units of the exposure
     t = np.asarray(t_ns, dtype=np.int64)[:, None] + np.round(
-        offsets[None, :] * exposure_s * 1e9).astype(np.int64)
+        offsets[None, :] * np.reshape(exposure_s, (-1, 1)) * 1e9).astype(np.int64)
+    lo = np.iinfo(np.int64).min if t_min_ns is None else int(t_min_ns)
+    hi = np.iinfo(np.int64).max if t_max_ns is None else int(t_max_ns)
+    return np.clip(t, lo, hi)
+
+
+def row_times(t_ns: np.ndarray, rows: int, line_delay_s: float,
+              t_min_ns: int | None = None, t_max_ns: int | None = None) -> np.ndarray:
+    """(..., rows) int64 ns: the times (...) shifted to each row of a rolling shutter, row
+    ``r`` by ``(r - (rows - 1) / 2) * line_delay_s`` (the middle row keeps the time), clamped
+    to ``[t_min_ns, t_max_ns]`` when given."""
+    shift = np.round((np.arange(rows) - 0.5 * (rows - 1)) * line_delay_s * 1e9).astype(np.int64)
+    t = np.asarray(t_ns, dtype=np.int64)[..., None] + shift
     lo = np.iinfo(np.int64).min if t_min_ns is None else int(t_min_ns)
     hi = np.iinfo(np.int64).max if t_max_ns is None else int(t_max_ns)
     return np.clip(t, lo, hi)
@@ -80,7 +101,7 @@ def blur_image(image: jax.Array, depth: jax.Array, rx: jax.Array, ry: jax.Array,
         rx, ry: (H * W,) undistorted normalised coordinates of every pixel centre, row-major
             (the ray ``(rx, ry, 1)``; :class:`~uavcal_jax.sim.render.RayBundle`'s).
         T_CmCs: (S, 4, 4) each sub-exposure camera in the mid-exposure camera's frame
-            (:func:`relative_poses`).
+            (:func:`relative_poses`), or (S, H, 4, 4) one per image row (rolling shutter).
         cam: the lens (projects into the mid-exposure image with its distortion).
 
     Returns:
@@ -92,13 +113,18 @@ def blur_image(image: jax.Array, depth: jax.Array, rx: jax.Array, ry: jax.Array,
     X, Y, Z = rx * d, ry * d, d  # (P,) points at the mid-exposure depth
     cam = cam.astype(f32)
     T_CmCs = jnp.asarray(T_CmCs, f32)
+    if T_CmCs.ndim == 4:  # one pose per row: (H, W) points against (H, 1) coefficients
+        X, Y, Z = (a.reshape(image.shape[:2]) for a in (X, Y, Z))
+        T_CmCs = T_CmCs[:, :, None]
 
     def add_sample(total, T):
         # scalar-times-array products fuse; a (P, 3) @ (3, 3) product ran 6x slower on CPU
-        px = T[0, 0] * X + T[0, 1] * Y + T[0, 2] * Z + T[0, 3]
-        py = T[1, 0] * X + T[1, 1] * Y + T[1, 2] * Z + T[1, 3]
-        pz = jnp.maximum(T[2, 0] * X + T[2, 1] * Y + T[2, 2] * Z + T[2, 3], 1e-6)
-        uv = camera_model.project_normalized(jnp.stack([px / pz, py / pz], axis=-1), cam)
+        px = T[..., 0, 0] * X + T[..., 0, 1] * Y + T[..., 0, 2] * Z + T[..., 0, 3]
+        py = T[..., 1, 0] * X + T[..., 1, 1] * Y + T[..., 1, 2] * Z + T[..., 1, 3]
+        pz = jnp.maximum(T[..., 2, 0] * X + T[..., 2, 1] * Y + T[..., 2, 2] * Z + T[..., 2, 3],
+                         1e-6)
+        xy = jnp.stack([px / pz, py / pz], axis=-1).reshape(-1, 2)
+        uv = camera_model.project_normalized(xy, cam)
         return total + _bilinear(image, uv[:, 0], uv[:, 1]), None
 
     zero = jnp.zeros((d.shape[0], *image.shape[2:]), f32)
