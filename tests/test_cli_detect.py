@@ -76,11 +76,11 @@ def test_parser_defaults_are_the_dataclass_defaults():
         TrainConfig,
     )
     from uavcal_jax.detect.options import TRAIN_FLAGS, train_options
-    from uavcal_jax.detect.tile import TileConfig
+    from uavcal_jax.detect.tile import TILE_MODES, TileConfig
     from uavcal_jax.runs import KINDS
 
     paper = TrainConfig()
-    tile = {"tile": (False, None), "tile_overlap": (TileConfig.overlap, None)}
+    tile = {"tile": ("auto", TILE_MODES), "tile_overlap": (TileConfig.overlap, None)}
     # dest -> (default, choices); None choices: a free value
     expected = {
         # the other train options set config fields: test_train_options_set_their_fields
@@ -289,12 +289,13 @@ def test_eval_and_predict_write_their_resolved_config(tmp_path, monkeypatch, cap
                  "multi_label=false", "max_det=50"]) == 0
     out = _json_line(capsys.readouterr().out)
     resolved = read_config(run / "eval_config.json", PredictConfig,
-                           ignore=("checkpoint", "data", "format", "batch", "interpolation"))
+                           ignore=("checkpoint", "data", "format", "batch", "interpolation",
+                                   "tile"))
     assert out["config"] == str(run / "eval_config.json")
     assert resolved == PredictConfig(conf_thresh=0.2, iou_thresh=0.6, multi_label=False,
                                      max_det=50)
     assert PredictConfig(**{k: seen["eval"][k] for k in vars(resolved)}) == resolved
-    assert seen["eval"]["tile"] is None  # off by default
+    assert seen["eval"]["tile"] == TileConfig.of_mode("auto")  # large images only, by default
     assert main(["detect", "eval", str(run), "--tile", "--tile-overlap", "0.3", "--out",
                  str(tmp_path / "ev"), "--json"]) == 0
     capsys.readouterr()
@@ -320,9 +321,13 @@ def test_eval_and_predict_write_their_resolved_config(tmp_path, monkeypatch, cap
                  "--iou", "0.3", "--json", "--set", "conf_thresh=0.05", "agnostic=true"]) == 0
     capsys.readouterr()
     resolved = read_config(pred / "predict_config.json", PredictConfig,
-                           ignore=("checkpoint", "batch"))
+                           ignore=("checkpoint", "batch", "tile"))
     assert resolved == PredictConfig(conf_thresh=0.05, iou_thresh=0.3, agnostic=True)
     assert (seen["info"]["conf_thresh"], seen["info"]["iou_thresh"]) == (0.05, 0.3)
+    assert seen["tile"] == TileConfig.of_mode("auto")
+    assert main(["detect", "predict", str(images), "--checkpoint", str(run), "--out", str(pred),
+                 "--tile", "off", "--json"]) == 0
+    capsys.readouterr()
     assert seen["tile"] is None
     assert main(["detect", "predict", str(images), "--checkpoint", str(run), "--out", str(pred),
                  "--tile", "--json"]) == 0

@@ -14,6 +14,7 @@ from uavcal_jax.detect.tile import (
     detect,
     detect_tiled,
     merge_detections,
+    needs_slicing,
     tile_origins,
     tile_windows,
 )
@@ -173,3 +174,25 @@ def test_the_run_configures_its_detector_with_tiles():
         for a, b in zip(got, want, strict=True):
             np.testing.assert_array_equal(a.boxes, b.boxes)
     assert len(got[0].boxes) == len(truth)
+
+
+def test_auto_slices_only_images_well_over_the_input():
+    image, truth, _ = scene(squares=SQUARES)
+    h, w = image.shape[:2]
+    auto = TileConfig.of_mode("auto", overlap=0.3, full_image=False)
+    assert TileConfig.of_mode("off") is None and TileConfig.of_mode("on") == TileConfig()
+    assert needs_slicing((h, w), TILE, auto)  # several times the input: sliced
+    (found,) = detect_tiled(stub_predict, [image], TILE, auto)
+    assert len(found.boxes) == len(truth)
+    # 1.4 times the input's width: letterboxed whole, as without tiles (one batch with the
+    # other whole image)
+    near = cv2.resize(image, (int(TILE[1] * 1.4), int(TILE[1] * 1.4 * h / w)),
+                      interpolation=cv2.INTER_NEAREST)
+    assert not needs_slicing(near.shape[:2], TILE, auto)
+    assert needs_slicing(near.shape[:2], TILE, TileConfig())
+    got = detect_tiled(stub_predict, [near, image, near], TILE, auto)
+    (whole,) = detect_images(stub_predict, [near], TILE)
+    for field in ImageDetections._fields:
+        np.testing.assert_array_equal(getattr(got[0], field), getattr(whole, field))
+        np.testing.assert_array_equal(getattr(got[2], field), getattr(whole, field))
+    np.testing.assert_array_equal(got[1].boxes, found.boxes)

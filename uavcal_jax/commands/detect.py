@@ -227,30 +227,32 @@ def _redirect_note(run: Path, out: str | None, folder: Path) -> None:
 
 
 def _add_tile(parser: argparse.ArgumentParser) -> None:
-    from uavcal_jax.detect.tile import TileConfig
+    from uavcal_jax.detect.tile import AUTO_MIN_SCALE, TILE_MODES, TileConfig
 
-    parser.add_argument("--tile", action="store_true",
+    parser.add_argument("--tile", nargs="?", choices=TILE_MODES, default="auto", const="on",
+                        metavar="{" + ",".join(TILE_MODES) + "}",
                         help="sliced inference (SAHI): run the network on overlapping windows "
                              "of each image at its own resolution, each of the network "
                              "input's size, and on the whole image, and merge the boxes "
                              "(class-wise NMS, intersection over the smaller box > "
-                             f"{TileConfig.match_thresh:g}): small objects in large images; "
-                             f"windows go {TileConfig.batch_size} to a network call, one image "
-                             "at a time (--batch is for whole images)")
+                             f"{TileConfig.match_thresh:g}): small objects in large images. "
+                             f"auto: slice images over {AUTO_MIN_SCALE:g} times the input's "
+                             "width or height, letterbox the rest whole; on (--tile alone): "
+                             "slice every image larger than the input; off: none. Windows go "
+                             f"{TileConfig.batch_size} to a network call, one image at a time "
+                             "(--batch is for whole images) [default: %(default)s]")
     parser.add_argument("--tile-overlap", type=float, default=TileConfig.overlap, metavar="R",
-                        help="with --tile: the least overlap of neighbouring windows, a "
-                             "fraction of a window's side [default: %(default)s]")
+                        help="the least overlap of neighbouring windows, a fraction of a "
+                             "window's side [default: %(default)s]")
 
 
 def _tile(args):
-    """The :class:`~uavcal_jax.detect.tile.TileConfig` of ``--tile`` (``None`` without);
+    """The :class:`~uavcal_jax.detect.tile.TileConfig` of ``--tile`` (``None`` for ``off``);
     a bad ``--tile-overlap`` is a DataError."""
     from uavcal_jax.detect.tile import TileConfig
 
-    if not args.tile:
-        return None
     try:
-        return TileConfig(overlap=args.tile_overlap)
+        return TileConfig.of_mode(args.tile, overlap=args.tile_overlap)
     except ValueError as err:
         raise DataError(f"--tile-overlap: {err}") from None
 

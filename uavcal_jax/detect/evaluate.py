@@ -15,7 +15,7 @@ from uavcal_jax.detect.loader import DetectionLoader, read_image_rgb
 from uavcal_jax.detect.metrics import evaluate_predictions
 from uavcal_jax.detect.predict import make_predict_fn, predict_dataset
 from uavcal_jax.detect.run import load_run
-from uavcal_jax.detect.tile import TileConfig, detect_tiled
+from uavcal_jax.detect.tile import TileConfig, detect_tiled, needs_slicing
 from uavcal_jax.errors import DataError
 from uavcal_jax.runs import results_folder
 
@@ -43,8 +43,9 @@ def evaluate_run(run: str | Path, data: str | Path | DetectionDataset | None = N
         interpolation: ``"coco101"`` or ``"voc07"``.
         progress: ``progress(iterable, total=...)`` wrapper of the batches (of the images
             with ``tile``).
-        tile: sliced inference (:func:`uavcal_jax.detect.tile.detect_tiled`, one image at a
-            time, its windows in batches of ``tile.batch_size``), ``None`` for none.
+        tile: sliced inference (:func:`uavcal_jax.detect.tile.detect_tiled`) of the images
+            it slices (:func:`~uavcal_jax.detect.tile.needs_slicing`), one at a time, their
+            windows in batches of ``tile.batch_size``; ``None`` for none.
         predict_changes: :class:`~uavcal_jax.detect.config.PredictConfig` fields replaced in
             the run's ``TrainConfig.predict`` (e.g. ``conf_thresh``).
 
@@ -76,20 +77,24 @@ def evaluate_run(run: str | Path, data: str | Path | DetectionDataset | None = N
     det_cfg, train_cfg = loaded.det_cfg, loaded.train_cfg
     predict_cfg = train_cfg.predict.replace(**predict_changes)
     predict_fn = functools.partial(make_predict_fn(det_cfg, predict_cfg), loaded.variables)
-    if tile is None:
-        loader = DetectionLoader(dataset, det_cfg.img_size,
-                                 batch_size or train_cfg.batch_size, include_difficult=True,
-                                 cache=False)
+    # images the tiling slices one at a time, the rest letterboxed whole in batches
+    sliced = [needs_slicing((r.height, r.width), det_cfg.img_size, tile)
+              for r in dataset.records]
+    whole = [r for r, s in zip(dataset.records, sliced, strict=True) if not s]
+    whole_dets = iter(())
+    if whole:
+        loader = DetectionLoader(whole, det_cfg.img_size, batch_size or train_cfg.batch_size,
+                                 include_difficult=True, cache=False)
         try:
-            dets = predict_dataset(predict_fn, loader, progress=progress)
+            whole_dets = iter(predict_dataset(predict_fn, loader, progress=progress))
         finally:
             loader.close()
-    else:
-        records = dataset.records
-        dets = [detect_tiled(predict_fn, [read_image_rgb(r.image_path)], det_cfg.img_size,
-                             tile, predict_cfg.max_det)[0]
-                for r in (records if progress is None else progress(records,
-                                                                   total=len(records)))]
+    cut = [r for r, s in zip(dataset.records, sliced, strict=True) if s]
+    cut_dets = iter([detect_tiled(predict_fn, [read_image_rgb(r.image_path)],
+                                  det_cfg.img_size, tile, predict_cfg.max_det)[0]
+                     for r in (cut if progress is None or not cut
+                               else progress(cut, total=len(cut)))])
+    dets = [next(cut_dets) if s else next(whole_dets) for s in sliced]
     result = evaluate_predictions(dataset.records, dets, det_cfg.num_classes,
                                   train_cfg.map_max_dets, interpolation)
     out = result.as_dict(class_names)
@@ -98,6 +103,7 @@ def evaluate_run(run: str | Path, data: str | Path | DetectionDataset | None = N
                wall_s=round(time.perf_counter() - t0, 2))
     if tile is not None:
         out["tile"] = dataclasses.asdict(tile)
+        out["sliced_images"] = sum(sliced)
     folder = results_folder(run, out_dir)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / EVAL_FILE).write_text(json.dumps(out, indent=1))
