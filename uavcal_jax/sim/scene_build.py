@@ -18,8 +18,27 @@ import numpy as np
 from uavcal_jax.sim.follow_targets import FollowRequest, plan_tracks, viewing_floor_z
 from uavcal_jax.sim.scene import CAR, CLASS_NAMES, PERSON, Scene, SceneConfig, Targets
 from uavcal_jax.sim.textures import detail_quads, face_atlas
+from uavcal_jax.sim.vehicles import PASSENGER_KINDS, Vehicle, draw_vehicle
 
-__all__ = ["make_scene"]
+__all__ = ["make_scene", "sun_lights"]
+
+#: Sun elevation range of a scene, degrees above the horizon.
+SUN_ELEVATION_DEG = (25.0, 70.0)
+
+
+def sun_lights(rng: np.random.Generator, ambient: float) -> tuple[np.ndarray, np.ndarray]:
+    """A scene's lights: ``(2, 3)`` unit directions towards the sun (azimuth uniform,
+    elevation in :data:`SUN_ELEVATION_DEG`) and a fill light from the opposite side and
+    below (the surroundings' bounce: it lights ceilings and undersides), and ``(3,)`` weights
+    ``ambient, sun, fill``. The ambient share varies by +-20 % (haze, overcast) around
+    ``ambient``; the sun and fill share the rest."""
+    az = rng.uniform(-np.pi, np.pi)
+    el = np.radians(rng.uniform(*SUN_ELEVATION_DEG))
+    sun = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    fill = np.array([-sun[0], -sun[1], -0.45]) + rng.uniform(-0.15, 0.15, 3)
+    amb = float(np.clip(ambient * rng.uniform(0.8, 1.2), 0.2, 0.9))
+    lights = np.stack([sun, fill / np.linalg.norm(fill)])
+    return lights, np.array([amb, 0.8 * (1 - amb), 0.5 * (1 - amb)])
 
 
 def _point_box_distance(points: np.ndarray, center, yaw, half) -> np.ndarray:
@@ -96,10 +115,14 @@ def _place_obstacles(rng, cfg, room_lo, room_hi, keep, keep_pad, avoid=None) -> 
 MAX_TARGET_HEIGHT = 1.9
 
 
-def _target_size(rng, cls: int) -> np.ndarray:
+def _target_size(rng, cls: int) -> tuple[np.ndarray, Vehicle | None]:
+    """Half extents (3,) of a new target and, for a car, its vehicle (a passenger kind: a
+    hall's cars stay below :data:`MAX_TARGET_HEIGHT`)."""
     if cls == CAR:
-        return 0.5 * np.array([rng.uniform(3.6, 4.7), rng.uniform(1.6, 1.9), rng.uniform(1.3, 1.6)])
-    return 0.5 * np.array([rng.uniform(0.4, 0.6), rng.uniform(0.28, 0.4), rng.uniform(1.55, 1.9)])
+        vehicle = draw_vehicle(rng, PASSENGER_KINDS)
+        return vehicle.half, vehicle
+    return 0.5 * np.array([rng.uniform(0.4, 0.6), rng.uniform(0.28, 0.4),
+                           rng.uniform(1.55, 1.9)]), None
 
 
 def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
@@ -111,7 +134,7 @@ def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
     n_moving = int(round(cfg.n_targets * cfg.moving_fraction))
     for i in range(cfg.n_targets):
         cls = int(cfg.target_classes[i % len(cfg.target_classes)])
-        half = _target_size(rng, cls)
+        half, vehicle = _target_size(rng, cls)
         moving = i < n_moving
         # moving targets try shrinking ellipses, then settle for standing still
         tries = [(1.0, moving), (0.6, moving), (0.35, moving), (0.0, False)] if moving else [
@@ -177,7 +200,7 @@ def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
             omega = float(speed / radii.mean()) * (1.0 if rng.random() < 0.5 else -1.0)
         targets.append(
             dict(
-                class_id=cls, half=half, center=xy, reach=reach, radii=radii,
+                class_id=cls, half=half, vehicle=vehicle, center=xy, reach=reach, radii=radii,
                 path_yaw=float(rng.uniform(-np.pi, np.pi)), omega=omega,
                 phase=float(rng.uniform(-np.pi, np.pi)), yaw=yaw, z=z,
             )
@@ -194,12 +217,13 @@ def _follow_targets(rng, cfg, req: FollowRequest, floor: float) -> list[dict]:
     """Follow targets along ``req`` (:mod:`uavcal_jax.sim.follow_targets`): classes cycle
     through ``cfg.target_classes``; target dicts as :func:`_place_targets`' plus the track."""
     classes = _follow_classes(cfg, req.n)
-    halves = np.stack([_target_size(rng, c) for c in classes])
+    sized = [_target_size(rng, c) for c in classes]
+    halves = np.stack([h for h, _ in sized])
     tracks = plan_tracks(req, floor, rng, classes, halves)
     out = []
-    for cls, half, track in zip(classes, halves, tracks, strict=True):
+    for cls, (half, vehicle), track in zip(classes, sized, tracks, strict=True):
         out.append(dict(
-            class_id=cls, half=half, center=track[:, :2].mean(0),
+            class_id=cls, half=half, vehicle=vehicle, center=track[:, :2].mean(0),
             reach=float(np.hypot(half[0], half[1])), radii=np.zeros(2), path_yaw=0.0,
             omega=0.0, phase=0.0, yaw=float(track[0, 2]), z=floor + half[2], tracked=True,
             track=track, track_t0=float(req.t[0]), track_dt=float(req.t[1] - req.t[0])
@@ -324,13 +348,11 @@ def make_scene(
     ) * 4.0 + sum(8.0 * (h[0] * h[1] + h[1] * h[2] + h[0] * h[2]) for _, _, h in static[1:])
     texel = max(cfg.texel, float(np.sqrt(hall_area / (0.85 * cfg.max_texels))))
     texture, face_tex, face_color = face_atlas(
-        rng, [h for _, _, h in static], texel, [(tg["class_id"], tg["half"]) for tg in targets],
+        rng, [h for _, _, h in static], texel,
+        [(tg["class_id"], tg["half"], tg["vehicle"]) for tg in targets],
         cfg.target_texel)
 
-    sun = np.array([0.35, 0.55, 0.75]) + rng.uniform(-0.15, 0.15, 3)
-    fill = np.array([-0.6, -0.3, -0.45]) + rng.uniform(-0.15, 0.15, 3)
-    lights = np.stack([sun / np.linalg.norm(sun), fill / np.linalg.norm(fill)])
-    light_weight = np.array([cfg.ambient, 0.8 * (1 - cfg.ambient), 0.5 * (1 - cfg.ambient)])
+    lights, light_weight = sun_lights(rng, cfg.ambient)
 
     f32 = np.float32
     n_t = len(targets)
