@@ -6,7 +6,8 @@ altitude uniform in ``altitude`` metres, yawed at random. The scene is sized to 
 footprint and textured at its ground sample distance, so the cost per frame hardly depends on
 the altitude. The render goes through a little defocus and motion blur (a drone drifting
 during the exposure) and the simulator's sensor model (:func:`uavcal_jax.sim.sensor.
-sensor_image`: shot and read noise, gain, rounding) with an exposure that varies per frame.
+sensor_image`: shot and read noise, gain, rounding) with an exposure set by a simple
+auto-exposure (the frame's mean near :data:`AE_TARGET`) and jittered per frame.
 
 Labels are the tight boxes of each target's visible pixels
 (:func:`~uavcal_jax.sim.target_boxes.target_boxes`): exact, whatever the vehicle's shape.
@@ -49,6 +50,8 @@ __all__ = ["MAX_TILT_DEG", "MIN_PIXELS", "nadir_camera", "nadir_frame", "nadir_p
 MAX_TILT_DEG = 5.0
 #: Fewest visible pixels of a labelled target.
 MIN_PIXELS = 12
+#: Mean image level (a fraction of full scale) the auto-exposure aims at.
+AE_TARGET = 0.45
 
 
 def nadir_camera(resolution=(1280, 720), hfov_deg: float = 70.0) -> camera_model.PinholeRadtan:
@@ -112,7 +115,9 @@ def nadir_frame(seed: int, camera: camera_model.PinholeRadtan, altitude: float
     T = nadir_pose(rng.uniform(-3.0, 3.0, 2), altitude, rng.uniform(-np.pi, np.pi), tilt)
     out = render(scene, camera, T, 0.0, color="rgb")
     radiance = _blur(np.asarray(out.image, np.float32), rng)
-    exposure = FULL_SCALE_ELECTRONS / SCENE_ELECTRONS_PER_S * rng.uniform(0.8, 1.25)
+    # auto-exposure: the frame's mean near AE_TARGET of full scale, give or take a quarter
+    gain = np.clip(AE_TARGET / max(float(radiance.mean()), 1e-3), 0.7, 3.0)
+    exposure = FULL_SCALE_ELECTRONS / SCENE_ELECTRONS_PER_S * gain * rng.uniform(0.8, 1.25)
     image = np.asarray(sensor_image(jnp.asarray(radiance), jax.random.PRNGKey(seed & 0x7FFFFFFF),
                                     SensorModel(exposure_s=exposure)))
     boxes, count = target_boxes(out.object_id, scene.n_targets)

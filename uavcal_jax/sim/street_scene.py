@@ -24,11 +24,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from uavcal_jax.sim.scene import CAR, CLASS_NAMES, PERSON, Scene, Targets
-from uavcal_jax.sim.scene_build import sun_lights
 from uavcal_jax.sim.textures import detail_quads, normalise, pack_quads, target_faces, value_noise
 from uavcal_jax.sim.vehicles import draw_vehicle
 
-__all__ = ["ATLAS_BUCKET", "MAX_STATIC", "MAX_TARGETS", "street_scene"]
+__all__ = ["ATLAS_BUCKET", "MAX_STATIC", "MAX_TARGETS", "street_scene", "sun_lights"]
 
 #: Static boxes (the hall first) and targets of every street scene (unused slots hidden).
 MAX_STATIC = 72
@@ -36,8 +35,10 @@ MAX_TARGETS = 160
 #: The texture atlas is padded to a multiple of this many texels.
 ATLAS_BUCKET = 1 << 21
 LANE_M = 3.3
-#: Ambient share of the light outdoors (the rest: the sun and its bounce).
+#: Ambient share of the light outdoors (the rest: the sun and its bounce), and the sun's
+#: elevation range, degrees (morning to noon).
 AMBIENT = 0.42
+SUN_ELEVATION_DEG = (20.0, 70.0)
 _ASPHALT = (np.array([0.02, 0.02, 0.02]), np.array([0.86, 0.86, 0.84]))
 _PAVING = (np.array([0.25, 0.24, 0.22]), np.array([0.80, 0.78, 0.74]))
 _GRASS = (np.array([0.05, 0.12, 0.03]), np.array([0.35, 0.55, 0.22]))
@@ -46,6 +47,21 @@ _ROOFS = ((0.60, 0.28, 0.20), (0.45, 0.45, 0.46), (0.25, 0.25, 0.27), (0.72, 0.7
           (0.55, 0.50, 0.42))
 _CONTAINERS = ((0.65, 0.12, 0.08), (0.12, 0.25, 0.55), (0.15, 0.40, 0.20), (0.85, 0.45, 0.10),
                (0.55, 0.56, 0.58), (0.90, 0.90, 0.88))
+
+
+def sun_lights(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A street's lights: ``(2, 3)`` unit directions towards the sun (azimuth uniform,
+    elevation uniform in :data:`SUN_ELEVATION_DEG`) and a fill light from the opposite side
+    and below (the surroundings' bounce), and ``(3,)`` weights ``ambient, sun, fill``: the
+    ambient share is :data:`AMBIENT` +- 25 % (haze, overcast), the sun and fill share the
+    rest."""
+    az = rng.uniform(-np.pi, np.pi)
+    el = np.radians(rng.uniform(*SUN_ELEVATION_DEG))
+    sun = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    fill = np.array([-sun[0], -sun[1], -0.45]) + rng.uniform(-0.15, 0.15, 3)
+    amb = AMBIENT * rng.uniform(0.75, 1.25)
+    lights = np.stack([sun, fill / np.linalg.norm(fill)])
+    return lights, np.array([amb, 0.8 * (1 - amb), 0.5 * (1 - amb)])
 
 
 class _Layout:
@@ -267,8 +283,11 @@ def _box_faces(atlas, rng, half, texel, top, a, b, kind):
                     tex = 0.6 * tex + 0.4 * (np.arange(nu)[None, :] * t / 0.3 % 1.0 < 0.5)
                 if axis != 2:
                     tex = 0.55 * tex + 0.2  # walls darker than the roof
+                elif kind == "tree":  # a crown: bright in the middle, dark at the rim
+                    yy, xx = np.mgrid[-1:1:nv * 1j, -1:1:nu * 1j]
+                    tex = tex * np.clip(1.2 - np.hypot(xx, yy), 0.05, 1.0)
                 else:
-                    tex = 0.35 + 0.65 * tex if kind != "tree" else tex
+                    tex = 0.35 + 0.65 * tex
             atlas.textured(tex.astype(np.float32), t, hu, hv, a, b)
 
 
@@ -286,7 +305,7 @@ def street_scene(seed: int, extent, gsd: float) -> Scene:
     rng = np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x57EE7]))
     ext = np.asarray(extent, np.float64).reshape(2)
     texel = float(gsd)
-    lights, light_weight = sun_lights(rng, AMBIENT)
+    lights, light_weight = sun_lights(rng)
     sun = lights[0]
     # a horizontal surface in shadow keeps the ambient light only
     factor = light_weight[0] / (light_weight[0] + light_weight[1] * sun[2])
@@ -326,7 +345,8 @@ def street_scene(seed: int, extent, gsd: float) -> Scene:
     for center, half, kind in lay.tiles:
         a, b = _PAVING if kind == "paving" else _GRASS
         nu, nv = int(np.ceil(2 * half[0] / texel)) + 2, int(np.ceil(2 * half[1] / texel)) + 2
-        top = 0.35 + 0.5 * normalise(value_noise(rng, nv, nu, texel, [0.3, 1.5, 6.0], 0.4))
+        top = normalise(value_noise(rng, nv, nu, texel, [0.3, 1.5, 6.0], 0.4))
+        top = 0.55 + 0.3 * top if kind == "paving" else 0.35 + 0.5 * top
         if kind == "paving":  # slabs: a grid of joints
             jj = max(1, int(round(0.6 / texel)))
             top[::jj] *= 0.8

@@ -243,14 +243,15 @@ def target_faces(rng: np.random.Generator, cls: int, half, vehicle: Vehicle | No
 
 
 def face_atlas(rng: np.random.Generator, static_half, texel: float, targets,
-               target_texel: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               target_texel: float, target_rng: np.random.Generator
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Textures and colours of every face: the static boxes' (hall first), then the targets'.
 
     Faces are ordered ``6 k + 2 axis + (1 if the + side)`` for box ``k`` (the targets follow
     the static boxes), the layout :class:`~uavcal_jax.sim.scene.Scene` documents.
 
     Args:
-        rng: draws every texture and colour, boxes in order.
+        rng: draws every static box's texture and colour, boxes in order.
         static_half: (3,) half extents of each static box, metres; box 0 is the hall (tinted
             paler than the obstacles).
         texel: metres per texel on the static boxes.
@@ -258,6 +259,7 @@ def face_atlas(rng: np.random.Generator, static_half, texel: float, targets,
             :class:`~uavcal_jax.sim.vehicles.Vehicle` for a car (its ``half`` is the
             target's), ``None`` for a person.
         target_texel: metres per texel on the targets.
+        target_rng: draws the targets' textures and colours.
 
     Returns:
         ``texture (N,) uint32`` packed quads, ``face_tex (F, 6) float32`` (offset, n_u, n_v,
@@ -289,7 +291,8 @@ def face_atlas(rng: np.random.Generator, static_half, texel: float, targets,
                 add_face(tex, texel, half[iu], half[iv], dark * tint, light * tint)
 
     for cls, half, vehicle in targets:
-        for tex, hu, hv, a_face, b_face in target_faces(rng, cls, half, vehicle, target_texel):
+        for tex, hu, hv, a_face, b_face in target_faces(target_rng, cls, half, vehicle,
+                                                        target_texel):
             add_face(tex, target_texel, hu, hv, a_face, b_face)
     return (np.concatenate(chunks), np.array(face_tex, np.float32),
             np.clip(np.array(face_color, np.float32), 0.0, 1.0))

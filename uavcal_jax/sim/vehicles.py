@@ -18,7 +18,8 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["KINDS", "PASSENGER_KINDS", "PAINTS", "Vehicle", "draw_paint", "draw_vehicle"]
+__all__ = ["KINDS", "PASSENGER_KINDS", "PAINTS", "Vehicle", "draw_paint", "draw_vehicle",
+           "vehicle_of_size"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,7 +104,18 @@ def draw_vehicle(rng: np.random.Generator, kinds: tuple[str, ...] | None = None)
         raise ValueError(f"no vehicle kind among {kinds}")
     shares = np.array([k.share for k in pool])
     kind = pool[int(rng.choice(len(pool), p=shares / shares.sum()))]
-    half = 0.5 * np.array([rng.uniform(*kind.length), rng.uniform(*kind.width),
-                           rng.uniform(*kind.height)])
+    u = rng.uniform(size=3)
+    lo, hi = np.array([kind.length, kind.width, kind.height]).T
+    half = 0.5 * (lo + u * (hi - lo))
     paint, color = draw_paint(rng)
     return Vehicle(kind, half, paint, color)
+
+
+def vehicle_of_size(rng: np.random.Generator, half) -> Vehicle:
+    """A passenger vehicle of a given size (``half`` (3,) metres; a hall's cars keep the sizes
+    their layout was drawn with): an SUV from 1.55 m tall, else a hatchback under 4.2 m long,
+    else a sedan; the paint from :func:`draw_paint`."""
+    half = np.asarray(half, np.float64)
+    name = "suv" if 2 * half[2] >= 1.55 else "hatchback" if 2 * half[0] < 4.2 else "sedan"
+    paint, color = draw_paint(rng)
+    return Vehicle(next(k for k in KINDS if k.name == name), half, paint, color)
