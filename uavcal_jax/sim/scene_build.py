@@ -4,8 +4,11 @@
 and targets (cars and people, some moving on ellipses) so that they keep a clearance from the
 flight path (and, given the camera's view directions, so that the targets are seen), plans the
 follow targets' tracks when asked (:mod:`uavcal_jax.sim.follow_targets`), then
-textures every face (:mod:`uavcal_jax.sim.textures`) and picks two directional lights. All of
-it is drawn from one ``numpy`` generator seeded by ``seed``: a seed gives the same scene.
+textures every face (:mod:`uavcal_jax.sim.textures`) and picks two directional lights. Cars
+are passenger vehicles of :mod:`uavcal_jax.sim.vehicles` (kind, size, paint). Everything is
+drawn from two ``numpy`` generators seeded by ``seed`` (the layout and the static textures
+from one; the targets' kinds, paints and textures and the lights from the other, so that the
+layout does not depend on how targets look): a seed gives the same scene.
 """
 
 from __future__ import annotations
@@ -18,9 +21,9 @@ import numpy as np
 from uavcal_jax.sim.follow_targets import FollowRequest, plan_tracks, viewing_floor_z
 from uavcal_jax.sim.scene import CAR, CLASS_NAMES, PERSON, Scene, SceneConfig, Targets
 from uavcal_jax.sim.textures import detail_quads, face_atlas
+from uavcal_jax.sim.vehicles import Vehicle, vehicle_of_size
 
 __all__ = ["make_scene"]
-
 
 def _point_box_distance(points: np.ndarray, center, yaw, half) -> np.ndarray:
     """Distance from points (M, 3) to a solid yaw box (0 inside)."""
@@ -96,13 +99,20 @@ def _place_obstacles(rng, cfg, room_lo, room_hi, keep, keep_pad, avoid=None) -> 
 MAX_TARGET_HEIGHT = 1.9
 
 
-def _target_size(rng, cls: int) -> np.ndarray:
+def _target_size(rng, style, cls: int) -> tuple[np.ndarray, Vehicle | None]:
+    """Half extents (3,) of a new target and, for a car, its vehicle: a passenger car of the
+    drawn size (:func:`~uavcal_jax.sim.vehicles.vehicle_of_size`, below
+    :data:`MAX_TARGET_HEIGHT`), its paint from ``style`` (the hall's layout, drawn from
+    ``rng``, stays as it was before cars had kinds)."""
     if cls == CAR:
-        return 0.5 * np.array([rng.uniform(3.6, 4.7), rng.uniform(1.6, 1.9), rng.uniform(1.3, 1.6)])
-    return 0.5 * np.array([rng.uniform(0.4, 0.6), rng.uniform(0.28, 0.4), rng.uniform(1.55, 1.9)])
+        half = 0.5 * np.array([rng.uniform(3.6, 4.7), rng.uniform(1.6, 1.9),
+                               rng.uniform(1.3, 1.6)])
+        return half, vehicle_of_size(style, half)
+    return 0.5 * np.array([rng.uniform(0.4, 0.6), rng.uniform(0.28, 0.4),
+                           rng.uniform(1.55, 1.9)]), None
 
 
-def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
+def _place_targets(rng, style, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
                    anchors=None, view_yaw=None, avoid=None) -> list[dict]:
     targets: list[dict] = []
     if anchors is None:
@@ -111,7 +121,7 @@ def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
     n_moving = int(round(cfg.n_targets * cfg.moving_fraction))
     for i in range(cfg.n_targets):
         cls = int(cfg.target_classes[i % len(cfg.target_classes)])
-        half = _target_size(rng, cls)
+        half, vehicle = _target_size(rng, style, cls)
         moving = i < n_moving
         # moving targets try shrinking ellipses, then settle for standing still
         tries = [(1.0, moving), (0.6, moving), (0.35, moving), (0.0, False)] if moving else [
@@ -177,7 +187,7 @@ def _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad, obstacles,
             omega = float(speed / radii.mean()) * (1.0 if rng.random() < 0.5 else -1.0)
         targets.append(
             dict(
-                class_id=cls, half=half, center=xy, reach=reach, radii=radii,
+                class_id=cls, half=half, vehicle=vehicle, center=xy, reach=reach, radii=radii,
                 path_yaw=float(rng.uniform(-np.pi, np.pi)), omega=omega,
                 phase=float(rng.uniform(-np.pi, np.pi)), yaw=yaw, z=z,
             )
@@ -190,16 +200,17 @@ def _follow_classes(cfg, n: int) -> list[int]:
     return [int(cfg.target_classes[i % len(cfg.target_classes)]) for i in range(n)]
 
 
-def _follow_targets(rng, cfg, req: FollowRequest, floor: float) -> list[dict]:
+def _follow_targets(rng, style, cfg, req: FollowRequest, floor: float) -> list[dict]:
     """Follow targets along ``req`` (:mod:`uavcal_jax.sim.follow_targets`): classes cycle
     through ``cfg.target_classes``; target dicts as :func:`_place_targets`' plus the track."""
     classes = _follow_classes(cfg, req.n)
-    halves = np.stack([_target_size(rng, c) for c in classes])
+    sized = [_target_size(rng, style, c) for c in classes]
+    halves = np.stack([h for h, _ in sized])
     tracks = plan_tracks(req, floor, rng, classes, halves)
     out = []
-    for cls, half, track in zip(classes, halves, tracks, strict=True):
+    for cls, (half, vehicle), track in zip(classes, sized, tracks, strict=True):
         out.append(dict(
-            class_id=cls, half=half, center=track[:, :2].mean(0),
+            class_id=cls, half=half, vehicle=vehicle, center=track[:, :2].mean(0),
             reach=float(np.hypot(half[0], half[1])), radii=np.zeros(2), path_yaw=0.0,
             omega=0.0, phase=0.0, yaw=float(track[0, 2]), z=floor + half[2], tracked=True,
             track=track, track_t0=float(req.t[0]), track_dt=float(req.t[1] - req.t[0])
@@ -279,6 +290,8 @@ def make_scene(
     """
     cfg = config or SceneConfig()
     rng = np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x5CE7E]))
+    # targets' kinds, paints and textures and the lights: a stream of their own
+    style = np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x5CE7E, 1]))
     lo = np.asarray(lo, dtype=np.float64).reshape(3)
     hi = np.asarray(hi, dtype=np.float64).reshape(3)
     if np.any(hi < lo):
@@ -292,7 +305,7 @@ def make_scene(
     avoid = None
     if follow is not None:
         room_lo[2] = min(room_lo[2], viewing_floor_z(follow, _follow_classes(cfg, follow.n)))
-        followers = _follow_targets(rng, cfg, follow, float(room_lo[2]))
+        followers = _follow_targets(rng, style, cfg, follow, float(room_lo[2]))
         for tg in followers:  # the hall holds the tracks, with a metre to spare
             room_lo[:2] = np.minimum(room_lo[:2], tg["track"][:, :2].min(0) - tg["reach"] - 1)
             room_hi[:2] = np.maximum(room_hi[:2], tg["track"][:, :2].max(0) + tg["reach"] + 1)
@@ -312,7 +325,7 @@ def make_scene(
             raise ValueError(f"view_directions has {view.shape[0]} rows, path_points "
                              f"{anchors.shape[0]}")
         view_yaw = np.arctan2(view[:, 1], view[:, 0])
-    targets = followers + _place_targets(rng, cfg, room_lo, room_hi, keep, keep_pad,
+    targets = followers + _place_targets(rng, style, cfg, room_lo, room_hi, keep, keep_pad,
                                          obstacles, anchors, view_yaw, avoid)
 
     room_c, room_h = 0.5 * (room_lo + room_hi), 0.5 * (room_hi - room_lo)
@@ -324,11 +337,14 @@ def make_scene(
     ) * 4.0 + sum(8.0 * (h[0] * h[1] + h[1] * h[2] + h[0] * h[2]) for _, _, h in static[1:])
     texel = max(cfg.texel, float(np.sqrt(hall_area / (0.85 * cfg.max_texels))))
     texture, face_tex, face_color = face_atlas(
-        rng, [h for _, _, h in static], texel, [(tg["class_id"], tg["half"]) for tg in targets],
-        cfg.target_texel)
+        rng, [h for _, _, h in static], texel,
+        [(tg["class_id"], tg["half"], tg["vehicle"]) for tg in targets],
+        cfg.target_texel, style)
 
-    sun = np.array([0.35, 0.55, 0.75]) + rng.uniform(-0.15, 0.15, 3)
-    fill = np.array([-0.6, -0.3, -0.45]) + rng.uniform(-0.15, 0.15, 3)
+    # two lights in fixed directions, jittered per scene (the halls' photometry and VIO
+    # figures are tuned to them; street scenes vary the sun far more)
+    sun = np.array([0.35, 0.55, 0.75]) + style.uniform(-0.15, 0.15, 3)
+    fill = np.array([-0.6, -0.3, -0.45]) + style.uniform(-0.15, 0.15, 3)
     lights = np.stack([sun / np.linalg.norm(sun), fill / np.linalg.norm(fill)])
     light_weight = np.array([cfg.ambient, 0.8 * (1 - cfg.ambient), 0.5 * (1 - cfg.ambient)])
 
