@@ -69,6 +69,7 @@ from uavcal_jax.plots import training_curves_writer
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.sim.cache import cached_simulation
 from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.nadir_set import nadir_street_set
 from uavcal_jax.sim.training_sets import trajectory_dir
 from uavcal_jax.xla_cache import enable_compilation_cache
 
@@ -111,6 +112,10 @@ AERIAL_REPEATS = 8
 #: Real photos with neither cars nor people (their own labels, raccoons, are dropped): what a
 #: real camera shows that is not a target.
 NEGATIVES = DATA_ROOT / "detection" / "raccoon_voc"
+#: Nadir colour frames over rendered streets (:func:`uavcal_jax.sim.nadir_set.nadir_street_set`):
+#: how many, their first seed, and the altitudes (metres; up to about the real aerial photos'
+#: 13 cm ground sample distance at the 1280x720, 70-degree camera).
+NADIR_FRAMES, NADIR_SEED, NADIR_ALTITUDE = 100, 7000, (20.0, 130.0)
 #: The real EuRoC frames scored for false positives (a room with no car and no person).
 MICRO = DATA_ROOT / "euroc_v101_micro"
 
@@ -156,6 +161,18 @@ def held_out(args) -> tuple[str, SimConfig]:
                       start=TRAJ_START_S if traj else 0.0)
 
 
+def nadir_frames(cache: Path, n: int) -> Path:
+    """The ``n`` nadir street frames, rendered once into ``cache``."""
+    folder = cache / f"nadir_{n}_{NADIR_SEED}"
+    if not (folder / "nadir_set.json").is_file():
+        tmp = folder.with_name(f".{folder.name}.partial")
+        shutil.rmtree(tmp, ignore_errors=True)
+        nadir_street_set(tmp, n, NADIR_SEED, altitude=NADIR_ALTITUDE)
+        shutil.rmtree(folder, ignore_errors=True)
+        tmp.rename(folder)
+    return folder
+
+
 def aerial_split(folder: Path, classes):
     """The real aerial photos of ``folder`` (YOLO, in ``classes``) split by image into
     ``(train, held_out)`` (:data:`AERIAL_VAL_FRACTION`, seed 0: ``detect_aerial.py``'s)."""
@@ -178,6 +195,9 @@ def training_sets(args, folders, train_cfg):
         aerial_train, aerial_val = aerial_split(args.aerial, classes)
         parts += [(f"aerial_{i}", aerial_train) for i in range(args.aerial_repeats)]
         val_parts.append(("aerial", aerial_val))
+    if args.nadir:
+        parts.append(("nadir", load_dataset(nadir_frames(args.cache, args.nadir), "yolo",
+                                            classes)))
     if args.negatives is not None:
         parts.append(("negatives", load_dataset(args.negatives, None, classes)))
     return concat_datasets(parts), concat_datasets(val_parts), aerial_val
@@ -264,6 +284,8 @@ def main() -> None:
     ap.add_argument("--negatives", type=_optional_dir, default=NEGATIVES,
                     help="real photos without targets, any labelled format ('none': no "
                          "negatives) [default: %(default)s]")
+    ap.add_argument("--nadir", type=int, default=NADIR_FRAMES,
+                    help="nadir street frames rendered (about 4 s each) [default: %(default)s]")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
     ap.add_argument("--rate", type=positive, default=2.0, help="frames per second rendered")
     ap.add_argument("--epochs", type=positive_int, default=SHIPPED.train.epochs,
