@@ -13,7 +13,7 @@ from conftest import SHARED_DATA
 from uavcal_jax.config import ConfigError, apply_overrides
 from uavcal_jax.geometry.frames import GRAVITY
 from uavcal_jax.imu.noise import EUROC_ADIS16448, ImuNoise
-from uavcal_jax.sim.config import EUROC_IMU_REALISM, SimConfig
+from uavcal_jax.sim.config import EUROC_IMU_REALISM, IMU_ERRORS, SimConfig
 from uavcal_jax.sim.flights import procedural_flight
 from uavcal_jax.sim.imu_synth import ImuIntrinsics, synthesize_imu
 from uavcal_jax.sim.imu_vibration import (
@@ -166,6 +166,7 @@ def test_config_fields_parse_validate_and_preset():
     assert config.imu_scale == (0.001, 0.0, 0.0, 0.0, 0.0, -0.002)
     assert config.to_dict()["imu_scale"] == list(config.imu_scale)
     config.validate()
+    assert set(EUROC_IMU_REALISM) == set(IMU_ERRORS)
     realistic = dataclasses.replace(SimConfig(), **EUROC_IMU_REALISM)
     realistic.validate()
     with pytest.raises(ValueError, match="imu_g_sensitivity"):
@@ -174,3 +175,12 @@ def test_config_fields_parse_validate_and_preset():
         SimConfig(imu_vibration=-1.0).validate()
     with pytest.raises(ConfigError):
         apply_overrides(SimConfig(), ["imu_time_offset=soon"])
+
+
+@pytest.mark.filterwarnings("ignore::uavcal_jax.errors.DataRepairWarning")  # the slice's cam1
+def test_hybrid_refuses_simulated_imu_errors(euroc_micro, tmp_path):
+    from uavcal_jax.sim.hybrid import simulate_hybrid
+
+    with pytest.raises(ValueError, match="imu_time_offset do not apply"):
+        simulate_hybrid(euroc_micro, tmp_path / "h", SimConfig(imu_time_offset=0.002,
+                                                                frames=False), duration=1.0)

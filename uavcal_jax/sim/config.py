@@ -36,6 +36,7 @@ __all__ = [
     "CAMERAS",
     "COLORS",
     "EUROC_IMU_REALISM",
+    "IMU_ERRORS",
     "LOW_RESOLUTION",
     "SimConfig",
     "camera_calibrations",
@@ -59,6 +60,9 @@ LOW_RESOLUTION: tuple[int, int] = (EUROC_RESOLUTION[0] // 2, EUROC_RESOLUTION[1]
 #: Stages with their own random stream, in :func:`stage_seeds`' order.
 STAGES = ("flight", "imu", "scene", "camera")
 
+#: The simulated IMU's errors beyond its noise (SimConfig fields; all off by default).
+IMU_ERRORS = ("imu_vibration", "imu_scale", "imu_misalignment", "imu_g_sensitivity",
+              "imu_time_offset")
 #: The IMU error settings given as number lists, and their lengths.
 _IMU_ERROR_COUNTS = {"imu_scale": 6, "imu_misalignment": 6, "imu_g_sensitivity": 9}
 _DEG = float(np.pi / 180.0)
@@ -126,8 +130,9 @@ class SimConfig:
             ``remove_offset`` with this value gives back the recording without it.
         imu_vibration: rotor vibration, as a multiple of the amplitudes of EuRoC V1_01's
             measured spectrum (:data:`uavcal_jax.sim.imu_vibration.EUROC_V101_VIBRATION`:
-            humps at 17.2, 27.3, 93.6 and 96.9 Hz and a broadband floor, per IMU axis, gyro
-            rad/s and accel m/s^2); 0 (the default) is none, 1 is V1_01's. Added to the motion
+            humps at 17.2, 27.3, 55.4, 72.7, 93.6 and 96.9 Hz and a broadband floor, per IMU
+            axis, gyro rad/s and accel m/s^2); 0 (the default) is none, 1 is V1_01's (its band
+            power above 15 Hz within 5 % per axis). Added to the motion
             before the intrinsics below (:mod:`uavcal_jax.sim.imu_synth`), with or without
             ``imu_noise``; the ground truth is the motion without it.
         imu_scale: ``None`` or 6 fractions, gyro x, y, z then accel x, y, z (IMU frame): each

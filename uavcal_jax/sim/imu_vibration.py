@@ -22,8 +22,8 @@ Frequencies are those seen at the recording's rate: an ADIS16448 sampled at 200 
 shows rotor harmonics above 100 Hz folded below it, and the bands are placed where they were
 seen. At another rate, bands above its Nyquist frequency are dropped.
 
-:data:`EUROC_V101_VIBRATION` is the spectrum of EuRoC V1_01's IMU (the simulator's default
-when ``SimConfig.imu_vibration`` is on).
+:data:`EUROC_V101_VIBRATION` is the spectrum of EuRoC V1_01's IMU (what
+``SimConfig.imu_vibration`` scales).
 """
 
 from __future__ import annotations
@@ -96,9 +96,10 @@ class VibrationSpectrum:
 
 
 #: EuRoC V1_01_easy's IMU (ADIS16448 at 200 Hz, the whole 145 s in flight), above 15 Hz: a
-#: hump at 17.2 Hz (gyro y/z, accel x), one at 27.3 Hz (gyro x, accel y), and the folded rotor
-#: harmonics at 93.6 and 96.9 Hz (all axes, accel x/z strongest); the accel floors are 10-19x
-#: the ``sensor.yaml`` white density, the gyro floors 2.4-5x. Measured by
+#: hump at 17.2 Hz (gyro y/z, accel x), one at 27.3 Hz (gyro x, accel y), smaller ones at 55.4
+#: and 72.7 Hz, and the folded rotor harmonics at 93.6 and 96.9 Hz (all axes, accel x/z
+#: strongest); the accel floors are 10-19x the ``sensor.yaml`` white density, the gyro floors
+#: 2.4-5x. Measured by
 #:     python -c "from uavcal_jax.sim.imu_vibration import fit_vibration_file as f; \
 #:                print(f('../shared/data/euroc_v101_micro'))"
 #: (rounded to 4 digits; ``tests/test_imu_vibration.py`` re-measures it when the data is there).
@@ -110,9 +111,15 @@ EUROC_V101_VIBRATION = VibrationSpectrum(
         VibrationBand(freq_hz=27.25, sigma_hz=1.073,
                       gyro_rms=(0.01406, 0.003479, 0.008516),
                       accel_rms=(0.05686, 0.2366, 0.05742)),
+        VibrationBand(freq_hz=55.4, sigma_hz=0.9515,
+                      gyro_rms=(0.0008867, 0.002108, 0.001673),
+                      accel_rms=(0.09037, 0.02286, 0.06652)),
+        VibrationBand(freq_hz=72.74, sigma_hz=0.6216,
+                      gyro_rms=(0.0009329, 0.007039, 0.002542),
+                      accel_rms=(0.2139, 0.1024, 0.1313)),
         VibrationBand(freq_hz=93.61, sigma_hz=4.19,
-                      gyro_rms=(0.007422, 0.03126, 0.01633),
-                      accel_rms=(0.7273, 0.3189, 0.556)),
+                      gyro_rms=(0.00731, 0.03039, 0.01604),
+                      accel_rms=(0.6892, 0.3011, 0.5362)),
         VibrationBand(freq_hz=96.88, sigma_hz=0.8374,
                       gyro_rms=(0.003625, 0.02192, 0.007702),
                       accel_rms=(0.5833, 0.1465, 0.5257)),
@@ -138,7 +145,7 @@ def imu_psd(samples: np.ndarray, rate_hz: float, nperseg: int = PSD_SEGMENT
 
 
 def fit_vibration(gyro: np.ndarray, accel: np.ndarray, rate_hz: float, noise: ImuNoise, *,
-                  f_low_hz: float = 15.0, max_bands: int = 4, floor_percentile: float = 20.0
+                  f_low_hz: float = 15.0, max_bands: int = 6, floor_percentile: float = 20.0
                   ) -> VibrationSpectrum:
     """The vibration spectrum of an IMU recording in flight, above the motion's band.
 

@@ -73,7 +73,13 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.imu.noise import EUROC_ADIS16448
 from uavcal_jax.imu.offset import add_offset
 from uavcal_jax.sim import imu_synth
-from uavcal_jax.sim.config import SimConfig, camera_calibrations, imu_rotation, stage_seeds
+from uavcal_jax.sim.config import (
+    IMU_ERRORS,
+    SimConfig,
+    camera_calibrations,
+    imu_rotation,
+    stage_seeds,
+)
 from uavcal_jax.sim.flights import procedural_flight
 from uavcal_jax.sim.frames import render_frames
 from uavcal_jax.sim.imu_vibration import EUROC_V101_VIBRATION
@@ -384,8 +390,7 @@ def _imu_comment(config: SimConfig) -> str:
             else "uavcal-jax simulated IMU (exact, no noise)")
     if config.imu_offset is not None:
         text += f" plus a constant offset (imu_offset in {SIM_CONFIG_FILE})"
-    extras = [name for name in ("imu_vibration", "imu_scale", "imu_misalignment",
-                                "imu_g_sensitivity", "imu_time_offset") if getattr(config, name)]
+    extras = [name for name in IMU_ERRORS if getattr(config, name)]
     if extras:
         text += f" with {', '.join(extras)} (in {SIM_CONFIG_FILE})"
     return text
