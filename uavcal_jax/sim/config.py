@@ -207,8 +207,7 @@ class SimConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "resolution", tuple(int(v) for v in self.resolution))
-        for name in ("start", "duration", "camera_rate_hz", "imu_rate_hz", "exposure_ms", "gain",
-                     "imu_vibration", "imu_time_offset"):
+        for name in ("start", "duration", "camera_rate_hz", "imu_rate_hz", "exposure_ms", "gain"):
             object.__setattr__(self, name, float(getattr(self, name)))
         if self.trajectory is not None:
             object.__setattr__(self, "trajectory", os.fspath(self.trajectory))
@@ -221,6 +220,8 @@ class SimConfig:
             # a tuple of floats whatever sequence was given (hashable, JSON-ready, and equal
             # to the parsed command-line value); the count is checked by validate()
             object.__setattr__(self, "imu_offset", tuple(float(v) for v in self.imu_offset))
+        for name in ("imu_vibration", "imu_time_offset"):
+            object.__setattr__(self, name, float(getattr(self, name)))
         for name in _IMU_ERROR_COUNTS:
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
@@ -279,7 +280,8 @@ class SimConfig:
         """The fields as JSON-ready values (``sim_config.json``'s ``config``)."""
         d = dataclasses.asdict(self)
         d["resolution"] = list(self.resolution)
-        for name in ("imu_offset", *_IMU_ERROR_COUNTS):
+        d["imu_offset"] = None if self.imu_offset is None else list(self.imu_offset)
+        for name in _IMU_ERROR_COUNTS:
             d[name] = None if getattr(self, name) is None else list(getattr(self, name))
         d["imu_rotation_deg"] = (None if self.imu_rotation_deg is None
                                  else list(self.imu_rotation_deg))

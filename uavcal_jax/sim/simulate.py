@@ -37,6 +37,14 @@ their noise and biases are drawn, so the noise streams are those of the same run
 the ground truth's bias columns stay the IMU's true biases; the offset itself is recorded in
 ``sim_config.json`` (``config.imu_offset``).
 
+IMU errors. ``SimConfig.imu_vibration``, ``imu_scale``, ``imu_misalignment``,
+``imu_g_sensitivity`` and ``imu_time_offset`` (:data:`~uavcal_jax.sim.config.IMU_ERRORS`, all
+off by default; :data:`~uavcal_jax.sim.config.EUROC_IMU_REALISM` holds EuRoC-like values) make
+the IMU read rotor vibration, scale and axis errors, g-sensitivity and a clock offset
+(:func:`uavcal_jax.sim.imu_synth.synthesize_imu`); the ground truth stays the motion and the
+biases, and the vibration spectrum used is recorded in ``sim_config.json``
+(``imu_vibration_spectrum``).
+
 Frames. Both EuRoC cameras (cam0, cam1: intrinsics, radial-tangential distortion and
 ``T_BS`` of the real VI-sensor) are rendered; another resolution scales the intrinsics (same
 field of view).
