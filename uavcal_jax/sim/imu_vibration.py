@@ -182,29 +182,27 @@ def fit_vibration(gyro: np.ndarray, accel: np.ndarray, rate_hz: float, noise: Im
     floor = np.percentile(p, floor_percentile, axis=0)
     excess = np.maximum(p - floor, 0.0)
     smooth = max(1, int(round(2.0 / df)))
-    score = np.convolve((excess / floor).sum(axis=1), np.ones(smooth) / smooth, mode="same")
+    relative = np.divide(excess, floor, out=np.zeros_like(excess), where=floor > 0)
+    score = np.convolve(relative.sum(axis=1), np.ones(smooth) / smooth, mode="same")
     peaks, props = signal.find_peaks(score, prominence=1.0)
     peaks = np.sort(peaks[np.argsort(props["prominences"])[::-1][:max_bands]])
-    # band edges: the band's ends and the lowest point between neighbouring peaks
-    edges = [0] + [a + int(np.argmin(score[a:b])) for a, b in zip(peaks[:-1], peaks[1:],
-                                                                   strict=True)] + [len(f)]
-    half = signal.peak_widths(score, peaks, rel_height=0.5) if len(peaks) else None
     bands = []
-    for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
-        if not len(peaks):
-            break
-        # centre and width from the hump's top half (the excess elsewhere is noise about the
-        # floor); the smoothing's variance is taken off the width
-        a, b = int(np.ceil(half[2][i])), int(np.floor(half[3][i])) + 1
-        w = score[a:b]
-        mean = float(np.sum(w * f[a:b]) / np.sum(w))
-        fwhm_var = (half[0][i] * df / 2.3548) ** 2 - (smooth * df) ** 2 / 12.0
-        sigma = float(np.sqrt(max(fwhm_var, df ** 2)))
-        # power: all the excess between the neighbouring humps (the band power is kept)
-        rms = np.sqrt(excess[lo:hi].sum(axis=0) * df)
-        bands.append(VibrationBand(freq_hz=mean, sigma_hz=sigma,
-                                   gyro_rms=tuple(float(v) for v in rms[:3]),
-                                   accel_rms=tuple(float(v) for v in rms[3:])))
+    if len(peaks):
+        # band edges: the band's ends and the lowest point between neighbouring peaks
+        edges = [0] + [a + int(np.argmin(score[a:b])) for a, b in zip(peaks[:-1], peaks[1:],
+                                                                       strict=True)] + [len(f)]
+        width, _, left, right = signal.peak_widths(score, peaks, rel_height=0.5)
+        for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+            # centre and width from the hump's top half (the excess elsewhere is noise about
+            # the floor); the smoothing's variance is taken off the width
+            a, b = int(np.ceil(left[i])), int(np.floor(right[i])) + 1
+            mean = float(np.sum(score[a:b] * f[a:b]) / np.sum(score[a:b]))
+            var = (width[i] * df / 2.3548) ** 2 - (smooth * df) ** 2 / 12.0
+            # power: all the excess between the neighbouring humps (the band power is kept)
+            rms = np.sqrt(excess[lo:hi].sum(axis=0) * df)
+            bands.append(VibrationBand(freq_hz=mean, sigma_hz=float(np.sqrt(max(var, df ** 2))),
+                                       gyro_rms=tuple(float(v) for v in rms[:3]),
+                                       accel_rms=tuple(float(v) for v in rms[3:])))
     white = np.concatenate([np.broadcast_to(np.asarray(d, np.float64), (3,)) for d in
                             (noise.gyro_noise_density, noise.accel_noise_density)])
     extra = np.sqrt(np.maximum(floor - 2.0 * white ** 2, 0.0) / 2.0)
