@@ -35,7 +35,8 @@ def test_a_later_field_unset_keeps_the_tag_and_set_changes_it():
     import hashlib
 
     later = ("imu_rotation_deg", "vignetting", "auto_exposure", "ae_target_dn",
-             "ae_time_constant_s", "line_delay_s")
+             "ae_time_constant_s", "line_delay_s", "imu_vibration", "imu_scale",
+             "imu_misalignment", "imu_g_sensitivity", "imu_time_offset")
     fields = {k: v for k, v in TINY.to_dict().items()
               if k not in ("png_workers", "batch_size", *later)}
     before = hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:8]
@@ -44,6 +45,7 @@ def test_a_later_field_unset_keeps_the_tag_and_set_changes_it():
                           "imu_rotation_deg": (0.0, -90.0, 0.0)})
     assert config_tag(turned) != before
     assert config_tag(SimConfig(**{**TINY.to_dict(), "vignetting": 1.1})) != before
+    assert config_tag(SimConfig(**{**TINY.to_dict(), "imu_vibration": 1.0})) != before
 
 
 def test_a_killed_render_is_not_reused(tmp_path):

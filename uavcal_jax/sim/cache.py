@@ -18,7 +18,7 @@ from pathlib import Path
 
 from uavcal_jax.data.sim_config import SIM_CONFIG_FILE
 from uavcal_jax.data.tum import read_tum
-from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.config import IMU_ERRORS, SimConfig
 from uavcal_jax.sim.simulate import simulate
 
 __all__ = ["cached_simulation", "config_tag", "trajectory_span"]
@@ -27,7 +27,7 @@ __all__ = ["cached_simulation", "config_tag", "trajectory_span"]
 #: SimConfig fields added after caches were tagged, left out of the tag while at their
 #: defaults (off).
 _LATER_FIELDS = ("imu_rotation_deg", "vignetting", "auto_exposure", "ae_target_dn",
-                 "ae_time_constant_s", "line_delay_s")
+                 "ae_time_constant_s", "line_delay_s", *IMU_ERRORS)
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(SimConfig)}
 
 

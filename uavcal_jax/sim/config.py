@@ -38,6 +38,8 @@ __all__ = [
     "CAMERAS",
     "COLORS",
     "EUROC_CAMERA_PRESET",
+    "EUROC_IMU_REALISM",
+    "IMU_ERRORS",
     "LOW_RESOLUTION",
     "SimConfig",
     "auto_exposure_settings",
@@ -70,6 +72,30 @@ STAGES = ("flight", "imu", "scene", "camera")
 #: it): :mod:`uavcal_jax.sim.auto_exposure`. Off by default until the VIO tables are rerun.
 EUROC_CAMERA_PRESET: dict[str, Any] = {"auto_exposure": True, "vignetting": EUROC_VIGNETTING,
                                        "line_delay_s": 0.0}
+
+#: The simulated IMU's errors beyond its noise (SimConfig fields; all off by default).
+IMU_ERRORS = ("imu_vibration", "imu_scale", "imu_misalignment", "imu_g_sensitivity",
+              "imu_time_offset")
+#: The IMU error settings given as number lists, and their lengths.
+_IMU_ERROR_COUNTS = {"imu_scale": 6, "imu_misalignment": 6, "imu_g_sensitivity": 9}
+_DEG = float(np.pi / 180.0)
+_G = 9.81
+#: EuRoC-like IMU errors, off by default (turning them on moves the VIO tables, which must be
+#: rerun): ``dataclasses.replace(config, **EUROC_IMU_REALISM)``, or ``--set`` with these
+#: values. The vibration is V1_01's measured spectrum; the rest are ADIS16448-class magnitudes
+#: (its data sheet: sensitivity tolerance about 1 %, axis-to-axis misalignment 0.05 degrees for
+#: the gyros and 0.2 degrees for the accelerometers, linear-acceleration effect on the gyro
+#: bias about 0.01 degree/s per g), one fixed draw of signs and sizes so that runs compare.
+#: The time offset stays 0: EuRoC's VI-sensor triggers its cameras on the IMU's clock
+#: (hardware sync); a few milliseconds is typical of unsynchronised rigs.
+EUROC_IMU_REALISM: dict = {
+    "imu_vibration": 1.0,
+    "imu_scale": (3e-3, -2e-3, 4e-3, -2.5e-3, 1.5e-3, 3.5e-3),
+    "imu_misalignment": tuple(v * _DEG for v in (0.04, -0.03, 0.05, 0.15, -0.2, 0.1)),
+    "imu_g_sensitivity": tuple(v * _DEG / _G for v in (0.01, -0.004, 0.006, 0.003, 0.009,
+                                                       -0.005, -0.007, 0.002, 0.01)),
+    "imu_time_offset": 0.0,
+}
 
 
 @dataclass(frozen=True)
@@ -115,6 +141,27 @@ class SimConfig:
             written IMU after its noise and biases, i.e. a miscalibrated sensor. The ground
             truth's bias columns stay the IMU's true biases (without the offset), so
             ``remove_offset`` with this value gives back the recording without it.
+        imu_vibration: rotor vibration, as a multiple of the amplitudes of EuRoC V1_01's
+            measured spectrum (:data:`uavcal_jax.sim.imu_vibration.EUROC_V101_VIBRATION`:
+            humps at 17.2, 27.3, 55.4, 72.7, 93.6 and 96.9 Hz and a broadband floor, per IMU
+            axis, gyro rad/s and accel m/s^2); 0 (the default) is none, 1 is V1_01's (its band
+            power above 15 Hz within 5 % per axis). Added to the motion
+            before the intrinsics below (:mod:`uavcal_jax.sim.imu_synth`), with or without
+            ``imu_noise``; the ground truth is the motion without it.
+        imu_scale: ``None`` or 6 fractions, gyro x, y, z then accel x, y, z (IMU frame): each
+            axis reads ``(1 + scale)`` times its input (1e-3 = 1000 ppm). With
+            ``imu_misalignment`` and ``imu_g_sensitivity`` this is OpenVINS's "kalibr" IMU
+            model (:class:`uavcal_jax.sim.imu_synth.ImuIntrinsics`: ``T_w``, ``T_a``, ``T_g``;
+            OpenVINS estimates ``D = T^-1``).
+        imu_misalignment: ``None`` or 6 small angles (rad), the strictly lower triangles of
+            ``T_w`` (gyro ``[1,0], [2,0], [2,1]``) then ``T_a`` (accel, likewise): the
+            axes' non-orthogonality.
+        imu_g_sensitivity: ``None`` or 9 numbers, ``T_g`` row-major, rad/s per m/s^2: the
+            gyro reads ``T_g a`` more for a specific force ``a`` (IMU frame, m/s^2).
+        imu_time_offset: seconds, Kalibr's ``timeshift_cam_imu`` (``t_imu = t_cam + shift``):
+            the IMU sample stamped ``t`` measures the motion at camera/ground-truth time ``t -
+            imu_time_offset`` (positive: the IMU's stamps run late). The frames and the ground
+            truth stay on the camera clock; 0 (the default) is none.
         frames: render and write cam0/cam1 (and depth, targets); false writes only the IMU and
             the ground truth.
         depth: write depth0/depth1 with the frames.
@@ -162,6 +209,11 @@ class SimConfig:
     seed: int = 0
     imu_noise: bool = True
     imu_offset: tuple[float, ...] | None = None
+    imu_vibration: float = 0.0
+    imu_scale: tuple[float, ...] | None = None
+    imu_misalignment: tuple[float, ...] | None = None
+    imu_g_sensitivity: tuple[float, ...] | None = None
+    imu_time_offset: float = 0.0
     frames: bool = True
     depth: bool = True
     targets: bool = True
@@ -197,6 +249,11 @@ class SimConfig:
             # a tuple of floats whatever sequence was given (hashable, JSON-ready, and equal
             # to the parsed command-line value); the count is checked by validate()
             object.__setattr__(self, "imu_offset", tuple(float(v) for v in self.imu_offset))
+        for name in ("imu_vibration", "imu_time_offset"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        for name in _IMU_ERROR_COUNTS:
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
 
     def validate(self) -> None:
         """Raise ``ValueError`` for values out of range (the file is checked by simulate)."""
@@ -246,6 +303,14 @@ class SimConfig:
                 len(self.imu_rotation_deg) == 3 and np.all(np.isfinite(self.imu_rotation_deg))):
             raise ValueError("imu_rotation_deg must be 3 finite numbers (a rotation vector, "
                              f"degrees), got {self.imu_rotation_deg}")
+        for name, count in _IMU_ERROR_COUNTS.items():
+            value = getattr(self, name)
+            if value is not None and not (len(value) == count and np.all(np.isfinite(value))):
+                raise ValueError(f"{name} must be {count} finite numbers, got {value}")
+        if not (np.isfinite(self.imu_vibration) and self.imu_vibration >= 0):
+            raise ValueError(f"imu_vibration must be >= 0, got {self.imu_vibration}")
+        if not (np.isfinite(self.imu_time_offset) and abs(self.imu_time_offset) < 1.0):
+            raise ValueError(f"imu_time_offset must be under 1 s, got {self.imu_time_offset}")
         if self.batch_size < 1 or self.png_workers < 1:
             raise ValueError("batch_size and png_workers must be >= 1")
 
@@ -254,6 +319,8 @@ class SimConfig:
         d = dataclasses.asdict(self)
         d["resolution"] = list(self.resolution)
         d["imu_offset"] = None if self.imu_offset is None else list(self.imu_offset)
+        for name in _IMU_ERROR_COUNTS:
+            d[name] = None if getattr(self, name) is None else list(getattr(self, name))
         d["imu_rotation_deg"] = (None if self.imu_rotation_deg is None
                                  else list(self.imu_rotation_deg))
         return d

@@ -47,7 +47,7 @@ from uavcal_jax.data.read import read_sequence
 from uavcal_jax.data.sequence import GroundTruth, ImuData, Sequence
 from uavcal_jax.data.sim_config import SIM_CONFIG_FILE
 from uavcal_jax.errors import DataError
-from uavcal_jax.sim.config import SimConfig, camera_calibrations, stage_seeds
+from uavcal_jax.sim.config import IMU_ERRORS, SimConfig, camera_calibrations, stage_seeds
 from uavcal_jax.sim.simulate import (
     SimReport,
     calib_dict,
@@ -198,8 +198,9 @@ def simulate_hybrid(real: str | Path, out_dir: str | Path, config: SimConfig | N
         out_dir: the output folder; must not exist or be empty unless ``overwrite``.
         config: the simulator's settings (frames, camera, seed, ``imu_offset``; default
             :class:`SimConfig`). ``trajectory`` is ignored, ``imu_noise`` does not apply (the
-            noise is real), ``imu_rotation_deg`` is refused (the real IMU is where it was
-            mounted) and ``imu_rate_hz`` becomes the real IMU's rate.
+            noise is real), ``imu_rotation_deg`` and the simulated IMU's errors
+            (:data:`~uavcal_jax.sim.config.IMU_ERRORS`) are refused (the real IMU has its own)
+            and ``imu_rate_hz`` becomes the real IMU's rate.
         start: seconds after the real IMU's first sample (default ``config.start``).
         duration: seconds (default ``config.duration``).
         progress: a progress bar on stderr.
@@ -226,6 +227,10 @@ def simulate_hybrid(real: str | Path, out_dir: str | Path, config: SimConfig | N
     if config.imu_rotation_deg is not None:
         raise ValueError("imu_rotation_deg does not apply to a hybrid recording (the real "
                          "IMU is where it was mounted)")
+    simulated_errors = [name for name in IMU_ERRORS if getattr(config, name)]
+    if simulated_errors:
+        raise ValueError(f"{', '.join(simulated_errors)} do not apply to a hybrid recording (the "
+                         "real IMU has its own vibration, intrinsics and clock)")
     ratio = config.imu_rate_hz / config.camera_rate_hz
     if abs(ratio - round(ratio)) > 1e-9:
         raise ValueError(f"camera_rate_hz {config.camera_rate_hz:g} must divide the real IMU's "

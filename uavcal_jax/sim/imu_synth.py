@@ -20,10 +20,28 @@ the bias walk). The true biases ``b_k`` are returned alongside the samples and c
 with the ground truth (:func:`ground_truth_from_trajectory`), as EuRoC's
 ``state_groundtruth_estimate0`` does.
 
+Sensor errors beyond the noise (each off unless given to :func:`synthesize_imu`):
+
+- a camera-IMU time offset ``time_offset`` (seconds; Kalibr's ``timeshift_cam_imu``,
+  ``t_imu = t_cam + shift``): the trajectory's clock is the cameras' and the ground truth's,
+  and the IMU sample stamped ``t`` measures the motion at ``t - time_offset`` (positive: the
+  IMU's stamps run late). Stamps whose shifted time falls outside the trajectory read its first
+  or last state (``|time_offset| * rate`` samples at one end);
+- rotor vibration (:mod:`uavcal_jax.sim.imu_vibration`), added to the exact angular rate and
+  specific force: the airframe's motion, so it passes through the intrinsics below;
+- intrinsics (:class:`ImuIntrinsics`, OpenVINS's "kalibr" model)::
+
+      gyro  = T_w omega + T_g accel_true + b_g + n_g
+      accel = T_a accel_true + b_a + n_a
+
+  ``T_w``, ``T_a`` lower triangular (scale on the diagonal, axis misalignment below it),
+  ``T_g`` the gyro's g-sensitivity.
+
 Randomness: numpy's ``Generator`` (PCG64), seeded with ``numpy.random.SeedSequence(seed)``
 spawned into independent streams for the gyro/accel turn-on biases, bias walks and white
 noise, so the same ``seed`` always gives the same samples (and, e.g., changing the white-noise
-density does not change the bias walk).
+density does not change the bias walk). The vibration has a seventh stream of the same
+``SeedSequence``, so switching it on leaves the noise and biases as they were.
 """
 
 from __future__ import annotations
@@ -37,9 +55,15 @@ from uavcal_jax.data.euroc_rig import EUROC_IMU_RATE_HZ
 from uavcal_jax.data.sequence import GroundTruth, ImuData
 from uavcal_jax.geometry.frames import GRAVITY_W
 from uavcal_jax.imu.noise import ImuNoise
+from uavcal_jax.sim.imu_vibration import VibrationSpectrum, vibration_samples
 from uavcal_jax.sim.trajectory import Trajectory, TrajectoryState
 
+#: Index of the vibration's stream among ``SeedSequence(seed).spawn(...)`` (after the six of
+#: :func:`imu_noise`).
+VIBRATION_STREAM = 6
+
 __all__ = [
+    "ImuIntrinsics",
     "SyntheticImu",
     "TurnOnBias",
     "ground_truth_from_trajectory",
@@ -63,6 +87,60 @@ class TurnOnBias:
 
     gyro_sigma: float = 0.03
     accel_sigma: float = 0.1
+
+
+@dataclass(frozen=True)
+class ImuIntrinsics:
+    """Deterministic sensor errors: scale, axis misalignment and the gyro's g-sensitivity, in
+    OpenVINS's "kalibr" IMU model (Yang, Geneva, Zuo, Huang, "Online Self-Calibration for
+    Visual-Inertial Navigation: Models, Analysis and Degeneracy", IEEE T-RO 2023; OpenVINS
+    ``StateOptions::ImuModel::KALIBR``), with the gyro and accelerometer axes otherwise those
+    of the IMU frame (``R_IMUtoGYRO`` = identity)::
+
+        gyro  = T_w omega_I + T_g a_I        a_I: true specific force, IMU frame (m/s^2)
+        accel = T_a a_I
+
+    OpenVINS estimates ``D_w = T_w^-1`` and ``D_a = T_a^-1`` (lower triangular, 6 numbers
+    each, column-wise) and ``T_g`` (9 numbers, column-wise).
+
+    Attributes:
+        T_w: (3, 3) lower triangular: ``1 + scale`` on the diagonal, misalignment below.
+        T_a: (3, 3) lower triangular, likewise for the accelerometer.
+        T_g: (3, 3) rad/s per m/s^2, g-sensitivity (``gyro += T_g a_I``).
+    """
+
+    T_w: np.ndarray
+    T_a: np.ndarray
+    T_g: np.ndarray
+
+    @classmethod
+    def from_errors(cls, scale=None, misalignment=None, g_sensitivity=None) -> ImuIntrinsics:
+        """From the simulator's flat settings (``None``: that error is absent).
+
+        Args:
+            scale: 6 fractions, gyro x, y, z then accel x, y, z: ``T[i, i] = 1 + scale[i]``
+                (1e-3 = 1000 ppm).
+            misalignment: 6 numbers (rad, small angles), gyro ``T_w[1,0], T_w[2,0],
+                T_w[2,1]`` then accel ``T_a[1,0], T_a[2,0], T_a[2,1]``: how much of an
+                earlier axis's input each later axis reads (the strictly lower triangle).
+            g_sensitivity: 9 numbers, ``T_g`` row-major, rad/s per m/s^2.
+        """
+        s = np.zeros(6) if scale is None else np.asarray(scale, dtype=np.float64)
+        m = np.zeros(6) if misalignment is None else np.asarray(misalignment, dtype=np.float64)
+        if s.shape != (6,) or m.shape != (6,):
+            raise ValueError("scale and misalignment must have 6 numbers each")
+        rows, cols = np.tril_indices(3, -1)
+        T = [np.diag(1.0 + s[3 * k:3 * k + 3]) for k in range(2)]
+        for k in range(2):
+            T[k][rows, cols] = m[3 * k:3 * k + 3]
+        T_g = (np.zeros((3, 3)) if g_sensitivity is None
+               else np.asarray(g_sensitivity, dtype=np.float64).reshape(3, 3))
+        return cls(T_w=T[0], T_a=T[1], T_g=T_g)
+
+    def apply(self, gyro: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3) true angular rate (rad/s) and specific force (m/s^2), IMU frame -> what the
+        sensor reads (before biases and noise)."""
+        return gyro @ self.T_w.T + accel @ self.T_g.T, accel @ self.T_a.T
 
 
 @dataclass(frozen=True)
@@ -137,7 +215,9 @@ def imu_noise(n: int, dt: float, noise: ImuNoise, seed: int = 0,
 def synthesize_imu(traj: Trajectory, rate_hz: float = EUROC_IMU_RATE_HZ,
                    noise: ImuNoise | None = None, seed: int = 0,
                    t_start: float | None = None, t_end: float | None = None,
-                   *, t_ns: np.ndarray | None = None, turn_on: TurnOnBias = TurnOnBias()
+                   *, t_ns: np.ndarray | None = None, turn_on: TurnOnBias = TurnOnBias(),
+                   time_offset: float = 0.0, vibration: VibrationSpectrum | None = None,
+                   vibration_scale: float = 1.0, intrinsics: ImuIntrinsics | None = None
                    ) -> SyntheticImu:
     """IMU samples of a trajectory at ``rate_hz`` (or at given times).
 
@@ -149,9 +229,14 @@ def synthesize_imu(traj: Trajectory, rate_hz: float = EUROC_IMU_RATE_HZ,
         t_start, t_end: span in seconds (default: the trajectory's).
         t_ns: explicit int64 ns sample times instead of the regular grid (e.g. a real IMU's).
         turn_on: spread of the initial biases (with ``noise`` only).
+        time_offset: seconds, Kalibr's ``timeshift_cam_imu`` (``t_imu = t_cam + shift``): the
+            sample stamped ``t`` measures the motion at ``t - time_offset`` (module docstring).
+        vibration: rotor vibration added to the motion (``None``: none), its amplitudes times
+            ``vibration_scale``; drawn from ``seed``'s vibration stream.
+        intrinsics: scale, misalignment and g-sensitivity (``None``: an ideal sensor).
 
     Returns:
-        :class:`SyntheticImu`.
+        :class:`SyntheticImu` (its ``t_ns`` are the stamps, unshifted).
     """
     if t_ns is None:
         t0 = traj.t_start if t_start is None else float(t_start)
@@ -160,8 +245,19 @@ def synthesize_imu(traj: Trajectory, rate_hz: float = EUROC_IMU_RATE_HZ,
     t_ns = np.asarray(t_ns, dtype=np.int64)
     if t_ns.ndim != 1 or len(t_ns) == 0 or np.any(np.diff(t_ns) <= 0):
         raise ValueError("t_ns must be a non-empty, strictly increasing (N,) array")
-    gyro, accel = _measurements(traj.state_ns(t_ns))
     n = len(t_ns)
+    if time_offset:
+        shift_ns = int(round(time_offset * 1e9))
+        t_lo, t_hi = (int(math.ceil(traj.t_start * 1e9)), int(math.floor(traj.t_end * 1e9)))
+        gyro, accel = _measurements(traj.state_ns(np.clip(t_ns - shift_ns, t_lo, t_hi)))
+    else:
+        gyro, accel = _measurements(traj.state_ns(t_ns))
+    if vibration is not None and vibration_scale:
+        rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(VIBRATION_STREAM + 1)[-1])
+        vib_gyro, vib_accel = vibration_samples(vibration, n, rate_hz, rng, vibration_scale)
+        gyro, accel = gyro + vib_gyro, accel + vib_accel
+    if intrinsics is not None:
+        gyro, accel = intrinsics.apply(gyro, accel)
     if noise is None:
         zeros = np.zeros((n, 3))
         return SyntheticImu(ImuData(t_ns=t_ns, gyro=gyro, accel=accel), zeros, zeros.copy())

@@ -37,6 +37,14 @@ their noise and biases are drawn, so the noise streams are those of the same run
 the ground truth's bias columns stay the IMU's true biases; the offset itself is recorded in
 ``sim_config.json`` (``config.imu_offset``).
 
+IMU errors. ``SimConfig.imu_vibration``, ``imu_scale``, ``imu_misalignment``,
+``imu_g_sensitivity`` and ``imu_time_offset`` (:data:`~uavcal_jax.sim.config.IMU_ERRORS`, all
+off by default; :data:`~uavcal_jax.sim.config.EUROC_IMU_REALISM` holds EuRoC-like values) make
+the IMU read rotor vibration, scale and axis errors, g-sensitivity and a clock offset
+(:func:`uavcal_jax.sim.imu_synth.synthesize_imu`); the ground truth stays the motion and the
+biases, and the vibration spectrum used is recorded in ``sim_config.json``
+(``imu_vibration_spectrum``).
+
 Frames. Both EuRoC cameras (cam0, cam1: intrinsics, radial-tangential distortion and
 ``T_BS`` of the real VI-sensor) are rendered; another resolution scales the intrinsics (same
 field of view).
@@ -73,15 +81,22 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.imu.noise import EUROC_ADIS16448
 from uavcal_jax.imu.offset import add_offset
 from uavcal_jax.sim import imu_synth
-from uavcal_jax.sim.config import SimConfig, camera_calibrations, imu_rotation, stage_seeds
+from uavcal_jax.sim.config import (
+    IMU_ERRORS,
+    SimConfig,
+    camera_calibrations,
+    imu_rotation,
+    stage_seeds,
+)
 from uavcal_jax.sim.flights import procedural_flight
 from uavcal_jax.sim.frames import render_frames
+from uavcal_jax.sim.imu_vibration import EUROC_V101_VIBRATION
 from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import FitConfig, check_flight_limits, fit_trajectory_report
 
 __all__ = ["SimReport", "calib_dict", "check_out_dir", "finish_report", "imu_calibration",
-           "load_flight", "mount_imu", "render_into_report", "simulate", "simulate_report",
-           "with_offset", "write_recording_atomically"]
+           "imu_intrinsics", "load_flight", "mount_imu", "render_into_report", "simulate",
+           "simulate_report", "with_offset", "write_recording_atomically"]
 
 
 @dataclass
@@ -177,6 +192,15 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
         traj = mount_imu(traj, imu_rotation(config))
     t_ns = t0_ns + period_ns * np.arange(n, dtype=np.int64)
     return traj, t_ns, info
+
+
+def imu_intrinsics(config: SimConfig) -> imu_synth.ImuIntrinsics | None:
+    """The configuration's scale, misalignment and g-sensitivity (``None`` when all three are
+    absent: an ideal sensor, and the samples stay those of a run without the options)."""
+    if (config.imu_scale, config.imu_misalignment, config.imu_g_sensitivity) == (None,) * 3:
+        return None
+    return imu_synth.ImuIntrinsics.from_errors(config.imu_scale, config.imu_misalignment,
+                                               config.imu_g_sensitivity)
 
 
 def with_offset(imu: ImuData, offset: tuple[float, ...] | None) -> ImuData:
@@ -301,8 +325,11 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
     imu_calib = imu_calibration(config)
     noise = imu_calib.noise if config.imu_noise else None
     turn_on = imu_synth.TurnOnBias()
-    synth = imu_synth.synthesize_imu(traj, rate_hz=config.imu_rate_hz, noise=noise,
-                                     seed=seeds["imu"], t_ns=imu_t_ns, turn_on=turn_on)
+    vibration = EUROC_V101_VIBRATION if config.imu_vibration else None
+    synth = imu_synth.synthesize_imu(
+        traj, rate_hz=config.imu_rate_hz, noise=noise, seed=seeds["imu"], t_ns=imu_t_ns,
+        turn_on=turn_on, time_offset=config.imu_time_offset, vibration=vibration,
+        vibration_scale=config.imu_vibration, intrinsics=imu_intrinsics(config))
     imu = synth.imu
     # the ground truth keeps the true biases: the offset is an extra error of the written IMU
     gt: GroundTruth = imu_synth.ground_truth_from_trajectory(
@@ -320,6 +347,8 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
         "imu_calibration": calib_dict(imu_calib),
         "counts": {"imu": len(imu), "ground_truth": len(gt)},
     }
+    if vibration is not None:
+        resolved["imu_vibration_spectrum"] = vibration.to_dict()
 
     t_write = time.perf_counter()
     with EurocWriter(root, workers=config.png_workers) as writer:
@@ -369,6 +398,9 @@ def _imu_comment(config: SimConfig) -> str:
             else "uavcal-jax simulated IMU (exact, no noise)")
     if config.imu_offset is not None:
         text += f" plus a constant offset (imu_offset in {SIM_CONFIG_FILE})"
+    extras = [name for name in IMU_ERRORS if getattr(config, name)]
+    if extras:
+        text += f" with {', '.join(extras)} (in {SIM_CONFIG_FILE})"
     return text
 
 
