@@ -67,14 +67,12 @@ def main() -> None:
                     help="a detector run folder [default: the shipped weights]")
     ap.add_argument("--aerial", type=Path, default=AERIAL,
                     help="the real aerial photos (YOLO) [default: %(default)s]")
-    ap.add_argument("--rate", type=float, default=2.0, help="frames a second of the flight")
-    ap.add_argument("--duration", type=float, default=20.0, help="seconds of the flight")
     ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "detect_sources",
                     help="the rendered flight and the evaluations [default: %(default)s]")
     add_write_docs(ap)
     args = ap.parse_args()
     classes = load_run(args.run).data["class_names"]
-    name, cfg = held_out(args)
+    name, cfg = held_out()
     folder = cached_simulation(cfg, args.cache / "held_out", name)
     aerial = aerial_split(args.aerial, classes)[1] if args.aerial.is_dir() else None
     rows = score_sources(args.run, (name, cfg, folder), aerial, args.cache / "eval")

@@ -1,41 +1,44 @@
 """Make the small detector weights shipped in the package (``uavcal run`` without
 ``--detector``: :func:`uavcal_jax.detect.default_weights.default_detector_run`).
 
-Recipe: the simulator's targets (car, person) on cam0 frames rendered at EuRoC's 752x480
-with its camera model (exposure, noise, motion blur), ``--rate`` frames a second (spaced
-frames: consecutive 20 Hz frames are near copies), along
+Recipe, four sources joined into one set (:func:`uavcal_jax.detect.datasets.concat_datasets`):
 
-* ``--procedural`` seeded procedural flights of ``--duration`` s (seeds from
-  :data:`FLIGHT_SEED`: the demo flies seed 0, training starts past it), and ``--steep`` more
-  with the rig pitched :data:`STEEP_PITCH_DEG` down;
-* the EuRoC trajectories :data:`EUROC_TRAIN` and the UZH-FPV indoor ones :data:`UZH_TRAIN`
-  (``--body-frame flu``, the rig pitched :data:`UZH_PITCH_DEG` down), ``--duration`` s
-  from :data:`TRAJ_START_S` s in (past the take-off; earlier where the file ends first);
+* real aerial photos, :data:`AERIAL` (``--aerial``): the fixed split by image of
+  :func:`aerial_split` (the held-out 20 % never trained on), each training photo
+  ``--aerial-repeats`` times per epoch (each copy a different crop);
+* real photos with neither cars nor people, :data:`NEGATIVES` (``--negatives``);
+* the simulator's targets (car, person) on cam0 frames rendered at EuRoC's 752x480 with its
+  camera model (exposure, noise, motion blur), ``--rate`` frames a second, along
+  ``--procedural`` seeded procedural flights of ``--duration`` s (seeds from
+  :data:`FLIGHT_SEED`: the demo flies seed 0, training starts past it), ``--steep`` more with
+  the rig pitched :data:`STEEP_PITCH_DEG` down, the EuRoC trajectories :data:`EUROC_TRAIN`
+  and the UZH-FPV indoor ones :data:`UZH_TRAIN` (``--body-frame flu``, the rig pitched
+  :data:`UZH_PITCH_DEG` down), from :data:`TRAJ_START_S` s in, each with
+  :data:`FOLLOW_TARGETS` moving targets placed where the camera looks;
+* ``--nadir`` colour frames looking straight down on rendered streets
+  (:func:`uavcal_jax.sim.nadir_set.nadir_street_set`, :data:`NADIR_ALTITUDE`).
 
-each with :data:`FOLLOW_TARGETS` moving targets placed where the camera looks
-(``SimConfig.follow_targets``) besides the scene's own. The flights are rendered once into
-``--cache`` (:func:`uavcal_jax.sim.cache.cached_simulation`), joined into one set
-(:func:`uavcal_jax.detect.datasets.concat_datasets`) and trained on with the
-:data:`~uavcal_jax.detect.default_weights.SHIPPED` preset (YZNet-YOLO-tiny at 256x384, YOLOv5's
-SGD recipe; ``--epochs``, ``--set``) into ``--cache/run``, a tenth of the frames validating
-and choosing the best epoch. Training stops early when ``--budget`` minutes have gone (the
-epoch that would pass it is not started). The best checkpoint is then scored on a held-out
-flight, :data:`HELD_OUT` (a EuRoC trajectory no training flight uses, a seed none uses;
-EuRoC's MH_04_difficult and V2_03_difficult are never trained on), with pycocotools-checked
-COCO mAP (:func:`uavcal_jax.detect.evaluate.evaluate_run`) as it ships: the run cut down to its
-config, metrics and best checkpoint, parameters stored as float16 (:data:`PARAMS_DTYPE`;
-restored as float32), plus that evaluation (``eval.json``), is written atomically to ``--out``
+Rendered data goes once into ``--cache``. Training uses the
+:data:`~uavcal_jax.detect.default_weights.SHIPPED` preset (YZNet-YOLO-tiny predicting at
+480x640, trained on multi-scale 320x320 crops, YOLOv5's SGD recipe; ``--epochs``, ``--set``)
+into ``--cache/run``; a tenth of the rendered frames and the aerial photos' held-out split
+validate and choose the best epoch. Training stops early when ``--budget`` minutes have gone
+(the epoch that would pass it is not started). The best checkpoint is exported as it ships
+(parameters stored as float16, :data:`PARAMS_DTYPE`; restored as float32), scored on each
+source by :func:`score_sources` (a held-out rendered flight, :data:`HELD_OUT`; the aerial
+photos' held-out split, whole and sliced; the real EuRoC frames' false positives), and
+written atomically with those scores as ``eval.json`` to ``--out``
 (:func:`uavcal_jax.detect.run.export_run`).
 
 Usage::
 
-    python experiments/detector_default_weights.py                 # about 32 min, 2 cores
+    python experiments/detector_default_weights.py                 # about 40 min, 2 cores
     python experiments/detector_default_weights.py --procedural 1 --steep 0 --euroc-flights 0 \
-        --uzh-flights 0 --duration 4 --epochs 1 --max-steps 2 --out /tmp/det_smoke  # smoke
+        --uzh-flights 0 --duration 2 --epochs 1 --max-steps 2 --nadir 2 --aerial-repeats 1 \
+        --out /tmp/det_smoke --cache /tmp/det_smoke_cache   # smoke, about 3 min
 
-The last line printed is one JSON object: mAP@0.5 and mAP@0.5:0.95 on the held-out flight
-and on the validation frames, the weights' size, the set's flights and frames, the training
-and total seconds.
+The last line printed is one JSON object: the figures per source and on the validation set,
+the weights' size, the set's flights and images, the training and total seconds.
 """
 
 from __future__ import annotations
@@ -98,8 +101,10 @@ TRAJ_START_S = 20.0
 FOLLOW_TARGETS = 2
 #: How the shipped parameters are stored (:func:`uavcal_jax.detect.run.export_run`).
 PARAMS_DTYPE = "float16"
-#: The held-out flight: (name, trajectory stem or None, seed).
+#: The held-out flight: (name, trajectory stem or None, seed), rendered at its own rate
+#: (frames a second) and length (s), whatever the training flights'.
 HELD_OUT = ("MH_04_difficult", "MH_04_difficult", 9000)
+HELD_OUT_RATE, HELD_OUT_DURATION = 2.0, 20.0
 #: Real aerial photos (a YOLO folder; its trucks, buses and minibuses are ``car`` through
 #: :data:`uavcal_jax.detect.datasets.CLASS_ALIASES`), with the fixed split by image of
 #: ``detect_aerial.py`` (:func:`~uavcal_jax.detect.datasets.split_ids`, this fraction, seed 0)
@@ -108,14 +113,14 @@ AERIAL = DATA_ROOT / "detection" / "aerial_cars_kit"
 AERIAL_VAL_FRACTION = 0.2
 #: Copies of each real aerial training photo per epoch (each a different random crop): the
 #: photos are few but large and dense, the rendered frames many.
-AERIAL_REPEATS = 8
+AERIAL_REPEATS = 16
 #: Real photos with neither cars nor people (their own labels, raccoons, are dropped): what a
 #: real camera shows that is not a target.
 NEGATIVES = DATA_ROOT / "detection" / "raccoon_voc"
 #: Nadir colour frames over rendered streets (:func:`uavcal_jax.sim.nadir_set.nadir_street_set`):
 #: how many, their first seed, and the altitudes (metres; up to about the real aerial photos'
 #: 13 cm ground sample distance at the 1280x720, 70-degree camera).
-NADIR_FRAMES, NADIR_SEED, NADIR_ALTITUDE = 100, 7000, (20.0, 130.0)
+NADIR_FRAMES, NADIR_SEED, NADIR_ALTITUDE = 80, 7000, (20.0, 130.0)
 #: The real EuRoC frames scored for false positives (a room with no car and no person).
 MICRO = DATA_ROOT / "euroc_v101_micro"
 
@@ -154,10 +159,11 @@ def flights(args) -> list[tuple[str, SimConfig]]:
     return out
 
 
-def held_out(args) -> tuple[str, SimConfig]:
+def held_out() -> tuple[str, SimConfig]:
+    """``(name, SimConfig)`` of the held-out flight."""
     name, stem, seed = HELD_OUT
     traj = None if stem is None else str(trajectory_dir(DATA_ROOT, "euroc") / f"{stem}.txt")
-    return name, _sim(args.rate, args.duration, seed, trajectory=traj,
+    return name, _sim(HELD_OUT_RATE, HELD_OUT_DURATION, seed, trajectory=traj,
                       start=TRAJ_START_S if traj else 0.0)
 
 
@@ -287,10 +293,10 @@ def main() -> None:
     ap.add_argument("--nadir", type=int, default=NADIR_FRAMES,
                     help="nadir street frames rendered (about 4 s each) [default: %(default)s]")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
-    ap.add_argument("--rate", type=positive, default=2.0, help="frames per second rendered")
+    ap.add_argument("--rate", type=positive, default=0.5, help="frames per second rendered")
     ap.add_argument("--epochs", type=positive_int, default=SHIPPED.train.epochs,
                     help="[default: the preset's, %(default)s]")
-    ap.add_argument("--budget", type=positive, default=85.0,
+    ap.add_argument("--budget", type=positive, default=40.0,
                     help="minutes of training at most [default: %(default)s]")
     ap.add_argument("--max-steps", type=positive_int, default=None,
                     help="batches per epoch at most (smoke runs)")
@@ -312,7 +318,7 @@ def main() -> None:
         ap.error("no training flights")
     folders = [(name, cached_simulation(cfg, args.cache / "flights", name, progress=show))
                for name, cfg in progress_bar(items, desc="flights", enabled=show, unit="flight")]
-    test_name, test_cfg = held_out(args)
+    test_name, test_cfg = held_out()
     test_folder = cached_simulation(test_cfg, args.cache / "held_out", test_name, progress=show)
     t_sim = time.perf_counter() - t0
 
