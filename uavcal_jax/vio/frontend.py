@@ -155,6 +155,15 @@ class FeatureTracker:
         # per corner, the last frame's flow that the gyro rotation did not explain, pixels
         self._trans_flow = np.zeros((0, 2), np.float32)
 
+    def equalised(self, img: np.ndarray) -> np.ndarray:
+        """One (H, W) or (H, W, 3) image as the tracker sees it: grey uint8, equalised."""
+        return self._prepare(img)[0]
+
+    @property
+    def lk_params(self) -> dict:
+        """The tracker's Lucas-Kanade window and stopping criteria (OpenCV keywords)."""
+        return dict(self._lk)
+
     # --- stages ---------------------------------------------------------------------------
 
     def _prepare(self, img: np.ndarray | None) -> tuple[np.ndarray | None, bool]:

@@ -21,18 +21,12 @@ from uavcal_jax.vio.frontend import FeatureTracker
 __all__ = ["corner_count", "lk_pair_stats", "tracking_stats"]
 
 
-def _equalised(tracker: FeatureTracker, image: np.ndarray) -> np.ndarray:
-    # the tracker's own preprocessing (gray, uint8, histogram or CLAHE equalisation)
-    img, _ = tracker._prepare(image)
-    return img
-
-
 def corner_count(tracker: FeatureTracker, image: np.ndarray) -> int:
     """Shi-Tomasi corners (``goodFeaturesToTrack`` with the tracker's quality level, minimum
     distance and block size, on its equalised image) in one (H, W) image, without the
     tracker's ``max_features`` cap: how much trackable texture the image has."""
     cfg = tracker.config
-    corners = cv2.goodFeaturesToTrack(_equalised(tracker, image), 0, cfg.quality_level,
+    corners = cv2.goodFeaturesToTrack(tracker.equalised(image), 0, cfg.quality_level,
                                       cfg.min_distance_px, blockSize=cfg.block_size)
     return 0 if corners is None else len(corners)
 
@@ -51,14 +45,14 @@ def lk_pair_stats(tracker: FeatureTracker, image0: np.ndarray, image1: np.ndarra
         corners were tracked. NaN figures when ``image0`` has no corner.
     """
     cfg = tracker.config
-    img0, img1 = _equalised(tracker, image0), _equalised(tracker, image1)
+    img0, img1 = tracker.equalised(image0), tracker.equalised(image1)
     pts0 = cv2.goodFeaturesToTrack(img0, cfg.max_features, cfg.quality_level,
                                    cfg.min_distance_px, blockSize=cfg.block_size)
     if pts0 is None:
         return {"survival": float("nan"), "residual": float("nan"), "fb_px": float("nan"),
                 "corners": 0}
     pts0 = pts0.astype(np.float32)
-    lk = tracker._lk  # the tracker's window and criteria
+    lk = tracker.lk_params
     pts1, st, err = cv2.calcOpticalFlowPyrLK(img0, img1, pts0, None, maxLevel=cfg.lk_max_level,
                                              **lk)
     back, st_b, _ = cv2.calcOpticalFlowPyrLK(img1, img0, pts1, None, maxLevel=cfg.lk_max_level,
