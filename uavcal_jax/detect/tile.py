@@ -32,9 +32,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from uavcal_jax.detect.augment import PAD_VALUE, letterbox
 from uavcal_jax.detect.config import SERVE_PREDICT
-from uavcal_jax.detect.predict import ImageDetections, detect_images, detect_letterboxed
+from uavcal_jax.detect.predict import ImageDetections, detect_images
 
 __all__ = ["AUTO_MIN_SCALE", "MATCH_METRICS", "TILE_MODES", "TileConfig", "detect",
            "detect_tiled", "merge_detections", "needs_slicing", "tile_origins", "tile_windows"]
@@ -211,18 +210,7 @@ def detect_tiled(predict_fn: Callable, images_rgb: Sequence[np.ndarray],
         if tile.full_image:
             crops.append(image)
             shifts.append((0.0, 0.0))
-        found = []
-        for start in range(0, len(crops), tile.batch_size):
-            chunk = crops[start:start + tile.batch_size]
-            batch = np.full((tile.batch_size, H, W, 3), PAD_VALUE / 255, np.float32)
-            ratios, pads, sizes = [], [], []
-            for j, crop in enumerate(chunk):
-                boxed, ratio, pad = letterbox(crop, (H, W))
-                batch[j] = boxed.astype(np.float32) / 255.0
-                ratios.append(ratio)
-                pads.append(pad)
-                sizes.append((crop.shape[1], crop.shape[0]))
-            found += detect_letterboxed(predict_fn, batch, ratios, pads, sizes)
+        found = detect_images(predict_fn, crops, img_size, tile.batch_size)
         shifted = [d.boxes + np.asarray([dx, dy, dx, dy]) for d, (dx, dy)
                    in zip(found, shifts, strict=True)]
         out.append(merge_detections(
