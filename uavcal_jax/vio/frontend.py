@@ -24,6 +24,11 @@ back end's arrays keep their shapes. Coordinates: pixels ``(u, v)`` with integer
 pixel centres (OpenCV's convention); undistorted normalised ``(x/z, y/z)`` in each camera's
 frame (x right, y down, z forward), computed with OpenCV's radial-tangential model -- the
 model of :mod:`uavcal_jax.geometry.camera` -- iterated to convergence.
+
+One job, one class: the tracker keeps the corners, their ids and ages between frames; its
+stages share that state, so they stay together (the checks on matches already live in
+:mod:`~uavcal_jax.vio.match_checks`, the statistics of a frame in
+:mod:`~uavcal_jax.vio.frontend_stats`).
 """
 
 from __future__ import annotations
