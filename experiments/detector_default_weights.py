@@ -33,6 +33,9 @@ written atomically with those scores as ``eval.json`` to ``--out``
 Usage::
 
     python experiments/detector_default_weights.py                 # about 40 min, 2 cores
+    python experiments/detector_default_weights.py --init uavcal_jax/detect/weights/default \
+        --rate 2 --aerial-repeats 6 --epochs 8 \
+        --set train.lr=0.002 train.warmup_bias_lr=0.002   # fine-tune the shipped weights
     python experiments/detector_default_weights.py --procedural 1 --steep 0 --euroc-flights 0 \
         --uzh-flights 0 --duration 2 --epochs 1 --max-steps 2 --nadir 2 --aerial-repeats 1 \
         --out /tmp/det_smoke --cache /tmp/det_smoke_cache   # smoke, about 3 min
@@ -300,6 +303,9 @@ def main() -> None:
                     help="minutes of training at most [default: %(default)s]")
     ap.add_argument("--max-steps", type=positive_int, default=None,
                     help="batches per epoch at most (smoke runs)")
+    ap.add_argument("--init", type=Path, default=None, metavar="RUN",
+                    help="fine-tune RUN's weights (e.g. the shipped ones, the --out default) "
+                         "instead of starting from random ones (train.init_from)")
     ap.add_argument("--set", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                     help="DetectConfig fields (detector.*, train.*) over the preset")
     ap.add_argument("--cache", type=Path, default=ROOT / "experiments" / "out" / "detector_cache",
@@ -322,8 +328,10 @@ def main() -> None:
     test_folder = cached_simulation(test_cfg, args.cache / "held_out", test_name, progress=show)
     t_sim = time.perf_counter() - t0
 
-    # the preset, --epochs, then --set
-    config = apply_overrides(apply_overrides(SHIPPED, {"train.epochs": args.epochs}), args.set)
+    # the preset, --epochs and --init, then --set
+    config = apply_overrides(apply_overrides(SHIPPED, {
+        "train.epochs": args.epochs,
+        "train.init_from": None if args.init is None else str(args.init.absolute())}), args.set)
     dataset, val_set, aerial_val = training_sets(args, folders, config.train)
     run = args.cache / "run"
     shutil.rmtree(run, ignore_errors=True)

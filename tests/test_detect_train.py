@@ -17,6 +17,7 @@ from uavcal_jax.detect.datasets import load_dataset
 from uavcal_jax.detect.optim import decay_mask, make_schedules, param_labels, warmup_steps
 from uavcal_jax.detect.run import load_run
 from uavcal_jax.detect.train import train
+from uavcal_jax.errors import DataError
 from uavcal_jax.plots import training_curves_writer
 
 IMG = (64, 96)  # (H, W): tiny, multiples of 32
@@ -161,3 +162,24 @@ def test_export_matches_in_process(tiny_runs, tmp_path):
     np.testing.assert_allclose(one["scores"], mine.scores, atol=1e-5)
     np.testing.assert_array_equal(one["classes"], mine.classes)
     assert np.all(mine.boxes[:, [0, 2]] <= 80) and np.all(mine.boxes[:, [1, 3]] <= 50)
+
+
+def test_fine_tuning_starts_from_the_runs_weights(tiny_runs, tmp_path):
+    """``init_from``: training starts from the source run's best weights, with its model (a
+    zero learning rate leaves them as they were); a data set naming other classes is
+    refused."""
+    ds, det, _, run_a, *_ = tiny_runs
+    train(ds, det.replace(img_size=(96, 128)),  # the source's model wins
+          tiny_config(epochs=1, lr=0.0, init_from=str(run_a)), tmp_path / "tuned")
+    source, tuned = load_run(run_a), load_run(tmp_path / "tuned", "last")
+    assert tuned.det_cfg == source.det_cfg
+    for x, y in zip(jax.tree.leaves(tuned.variables["params"]),
+                    jax.tree.leaves(source.variables["params"]), strict=True):
+        # the EMA's d x + (1 - d) x rounds
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-5, atol=1e-7)
+
+    other = make_synthetic_yolo(tmp_path / "other", n=4)
+    (other / "classes.txt").write_text("green\nblue\n")
+    with pytest.raises(DataError, match="classes"):
+        train(load_dataset(other), det, tiny_config(epochs=1, init_from=str(run_a)),
+              tmp_path / "refused")

@@ -241,6 +241,10 @@ class TrainConfig:
     workers: int = 2
     cache: bool = True
     autoanchor: bool = True
+    #: a trained run folder (or the shipped ``uavcal_jax/detect/weights/default``) whose best
+    #: weights start the training instead of random ones: fine-tuning. Its model, anchors and
+    #: class names are kept (the data set must name the same classes); autoanchor is skipped.
+    init_from: str | None = None
 
     def __post_init__(self):
         if self.optimizer not in OPTIMIZERS:

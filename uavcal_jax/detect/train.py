@@ -46,12 +46,33 @@ def prepare_split(dataset: DetectionDataset, cfg: TrainConfig, val_dataset=None)
     return dataset.subset(train_ids), dataset.subset(val_ids)
 
 
+def starting_weights(cfg: TrainConfig, dataset: DetectionDataset):
+    """``(detector config, variables)`` of ``cfg.init_from`` (fine-tuning), or ``None``.
+
+    Raises:
+        DataError: the run is unreadable, or ``dataset`` names other classes than it."""
+    if cfg.init_from is None:
+        return None
+    from uavcal_jax.detect.run import load_run
+
+    source = load_run(cfg.init_from)
+    names = list(source.data.get("class_names") or [])
+    if names and names != list(dataset.class_names):
+        raise DataError(f"the data set's classes {list(dataset.class_names)} are not the "
+                        f"classes {names} of the weights to fine-tune", Path(cfg.init_from))
+    return source.det_cfg, source.variables
+
+
 def _resolve(paths: RunPaths, dataset: DetectionDataset, det_cfg: DetectorConfig,
              cfg: TrainConfig, resume: bool, val_dataset, log):
     """The configurations and the (train, val) sets of this call: the saved ones when
-    resuming (``cfg.epochs`` may be raised), else fresh ones with autoanchor."""
+    resuming (``cfg.epochs`` may be raised), else fresh ones with autoanchor (or the model
+    of ``cfg.init_from`` when fine-tuning)."""
     if not resume:
         train_set, val_set = prepare_split(dataset, cfg, val_dataset)
+        start = starting_weights(cfg, dataset)
+        if start is not None:
+            return start[0], cfg, train_set, val_set
         wh = label_sizes(train_set, det_cfg.img_size)
         if cfg.autoanchor and len(wh):  # YOLOv5's train.py: fit anchors to the labels
             det_cfg, report = check_anchors(det_cfg, wh, seed=cfg.seed)
@@ -121,7 +142,15 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
         save_split(paths.split, train_set.image_ids, val_set.image_ids if val_set else [],
                    val_fraction=cfg.val_fraction, seed=cfg.split_seed,
                    external_val=val_dataset is not None)
-        return init_train_state(jax.random.PRNGKey(cfg.seed), det_cfg, tx)
+        state = init_train_state(jax.random.PRNGKey(cfg.seed), det_cfg, tx)
+        start = starting_weights(cfg, dataset)
+        if start is None:
+            return state
+        params, stats = start[1]["params"], start[1]["batch_stats"]
+        copy = lambda tree: jax.tree.map(jnp.array, tree)  # noqa: E731 - own buffers
+        return state._replace(params=copy(params), batch_stats=copy(stats),
+                              opt_state=tx.init(params), ema_params=copy(params),
+                              ema_batch_stats=copy(stats))
 
     def batches(epoch: int):
         stream = loader.epoch(epoch)
