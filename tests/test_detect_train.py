@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 
@@ -14,9 +15,15 @@ import pytest
 from uavcal_jax.detect.anchors import anchor_metrics, label_sizes
 from uavcal_jax.detect.config import SERVE_PREDICT, DetectorConfig, TrainConfig
 from uavcal_jax.detect.datasets import load_dataset
-from uavcal_jax.detect.optim import decay_mask, make_schedules, param_labels, warmup_steps
+from uavcal_jax.detect.optim import (
+    decay_mask,
+    make_optimizer,
+    make_schedules,
+    param_labels,
+    warmup_steps,
+)
 from uavcal_jax.detect.run import load_run
-from uavcal_jax.detect.train import train
+from uavcal_jax.detect.train import initial_state, starting_weights, train
 from uavcal_jax.errors import DataError
 from uavcal_jax.plots import training_curves_writer
 
@@ -165,21 +172,27 @@ def test_export_matches_in_process(tiny_runs, tmp_path):
 
 
 def test_fine_tuning_starts_from_the_runs_weights(tiny_runs, tmp_path):
-    """``init_from``: training starts from the source run's best weights, with its model (a
-    zero learning rate leaves them as they were); a data set naming other classes is
-    refused."""
-    ds, det, _, run_a, *_ = tiny_runs
-    train(ds, det.replace(img_size=(96, 128)),  # the source's model wins
-          tiny_config(epochs=1, lr=0.0, init_from=str(run_a)), tmp_path / "tuned")
-    source, tuned = load_run(run_a), load_run(tmp_path / "tuned", "last")
-    assert tuned.det_cfg == source.det_cfg
-    for x, y in zip(jax.tree.leaves(tuned.variables["params"]),
-                    jax.tree.leaves(source.variables["params"]), strict=True):
-        # the EMA's d x + (1 - d) x rounds
-        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-5, atol=1e-7)
+    """``init_from``: a fresh run's state holds the source run's best weights (as weights and
+    as their EMA) and its model, whatever model was asked for; a data set naming other classes
+    is refused before any training."""
+    ds, det, cfg, run_a, *_ = tiny_runs
+    tuned_cfg = dataclasses.replace(cfg, init_from=str(run_a))
+    det_cfg, variables = starting_weights(tuned_cfg, ds)
+    source = load_run(run_a)
+    assert det_cfg == source.det_cfg != det.replace(img_size=(96, 128))
+    tx = make_optimizer(tuned_cfg, 1, variables["params"])
+    state = initial_state(det_cfg, tuned_cfg, tx, variables)
+    fresh = initial_state(det_cfg, tuned_cfg, tx, None)
+    for tree in (state.params, state.ema_params):
+        for x, y, z in zip(jax.tree.leaves(tree), jax.tree.leaves(source.variables["params"]),
+                           jax.tree.leaves(fresh.params), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+            assert x.shape == z.shape
+    moved = [not np.array_equal(np.asarray(y), np.asarray(z)) for y, z in zip(
+        jax.tree.leaves(source.variables["params"]), jax.tree.leaves(fresh.params), strict=True)]
+    assert any(moved)  # the source run trained: its weights are not the random ones
 
     other = make_synthetic_yolo(tmp_path / "other", n=4)
     (other / "classes.txt").write_text("green\nblue\n")
     with pytest.raises(DataError, match="classes"):
-        train(load_dataset(other), det, tiny_config(epochs=1, init_from=str(run_a)),
-              tmp_path / "refused")
+        train(load_dataset(other), det, tuned_cfg, tmp_path / "refused")

@@ -63,6 +63,20 @@ def starting_weights(cfg: TrainConfig, dataset: DetectionDataset):
     return source.det_cfg, source.variables
 
 
+def initial_state(det_cfg: DetectorConfig, cfg: TrainConfig, tx, variables: dict | None
+                  ) -> TrainState:
+    """A fresh run's state: random weights from ``cfg.seed``, or ``variables`` (``{"params",
+    "batch_stats"}``, :func:`starting_weights`') as both the weights and their EMA."""
+    state = init_train_state(jax.random.PRNGKey(cfg.seed), det_cfg, tx)
+    if variables is None:
+        return state
+    params, stats = variables["params"], variables["batch_stats"]
+    copy = lambda tree: jax.tree.map(jnp.array, tree)  # noqa: E731 - own buffers (donation)
+    return state._replace(params=copy(params), batch_stats=copy(stats),
+                          opt_state=tx.init(params), ema_params=copy(params),
+                          ema_batch_stats=copy(stats))
+
+
 def _resolve(paths: RunPaths, dataset: DetectionDataset, det_cfg: DetectorConfig,
              cfg: TrainConfig, resume: bool, val_dataset, log):
     """The configurations and the (train, val) sets of this call: the saved ones when
@@ -134,23 +148,18 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
     val_loader = (DetectionLoader(val_set, det_cfg.img_size, cfg.batch_size, cache=cfg.cache,
                                   workers=cfg.workers, include_difficult=True)
                   if val_set is not None and len(val_set) else None)
-    # the step does not depend on the epoch budget except through the schedule
-    tx, step_fn = compiled_training(det_cfg, cfg, steps_per_epoch)
+    # the step does not depend on the epoch budget except through the schedule, nor on where
+    # the weights started (one compilation for a run and its fine-tuning)
+    tx, step_fn = compiled_training(det_cfg, dataclasses.replace(cfg, init_from=None),
+                                    steps_per_epoch)
     predict_fn = make_predict_fn(det_cfg, cfg.predict) if val_loader else None
 
     def init() -> TrainState:  # a fresh run: its split, then its state
         save_split(paths.split, train_set.image_ids, val_set.image_ids if val_set else [],
                    val_fraction=cfg.val_fraction, seed=cfg.split_seed,
                    external_val=val_dataset is not None)
-        state = init_train_state(jax.random.PRNGKey(cfg.seed), det_cfg, tx)
         start = starting_weights(cfg, dataset)
-        if start is None:
-            return state
-        params, stats = start[1]["params"], start[1]["batch_stats"]
-        copy = lambda tree: jax.tree.map(jnp.array, tree)  # noqa: E731 - own buffers
-        return state._replace(params=copy(params), batch_stats=copy(stats),
-                              opt_state=tx.init(params), ema_params=copy(params),
-                              ema_batch_stats=copy(stats))
+        return initial_state(det_cfg, cfg, tx, None if start is None else start[1])
 
     def batches(epoch: int):
         stream = loader.epoch(epoch)
