@@ -15,6 +15,9 @@ Recipe, four sources joined into one set (:func:`uavcal_jax.detect.datasets.conc
   and the UZH-FPV indoor ones :data:`UZH_TRAIN` (``--body-frame flu``, the rig pitched
   :data:`UZH_PITCH_DEG` down), from :data:`TRAJ_START_S` s in, each with
   :data:`FOLLOW_TARGETS` moving targets placed where the camera looks;
+* with ``--low-res``, the same flights again at the fast size :data:`LOW_RESOLUTION` that
+  the demo and the closed-loop studies render at (upscaled into the detector's input: softer
+  edges than any 752x480 frame gives);
 * ``--nadir`` colour frames looking straight down on rendered streets
   (:func:`uavcal_jax.sim.nadir_set.nadir_street_set`, :data:`NADIR_ALTITUDE`).
 
@@ -47,6 +50,7 @@ the weights' size, the set's flights and images, the training and total seconds.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 import sys
@@ -74,7 +78,7 @@ from uavcal_jax.pipeline.run_config import DetectStageConfig
 from uavcal_jax.plots import training_curves_writer
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.sim.cache import cached_simulation
-from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.config import LOW_RESOLUTION, SimConfig
 from uavcal_jax.sim.nadir_set import nadir_street_set
 from uavcal_jax.sim.training_sets import trajectory_dir
 from uavcal_jax.xla_cache import enable_compilation_cache
@@ -159,6 +163,9 @@ def flights(args) -> list[tuple[str, SimConfig]]:
         out.append((stem, _sim(args.rate, args.duration, FLIGHT_SEED + 200 + i,
                                trajectory=str(path), start=start, body_frame="flu",
                                camera_pitch_deg=UZH_PITCH_DEG[stem.rsplit("_", 1)[0]])))
+    if args.low_res:  # the same flights again at the fast size the demo renders at
+        out += [(f"{name}_low", dataclasses.replace(cfg, resolution=LOW_RESOLUTION))
+                for name, cfg in out]
     return out
 
 
@@ -297,6 +304,10 @@ def main() -> None:
                     help="nadir street frames rendered (about 4 s each) [default: %(default)s]")
     ap.add_argument("--duration", type=positive, default=20.0, help="seconds per flight")
     ap.add_argument("--rate", type=positive, default=0.5, help="frames per second rendered")
+    ap.add_argument("--low-res", action="store_true",
+                    help="every flight also rendered at the fast size "
+                         f"{LOW_RESOLUTION[0]}x{LOW_RESOLUTION[1]} (the demo's, the closed "
+                         "loop's and the long flights'), upscaled at inference")
     ap.add_argument("--epochs", type=positive_int, default=SHIPPED.train.epochs,
                     help="[default: the preset's, %(default)s]")
     ap.add_argument("--budget", type=positive, default=40.0,

@@ -8,8 +8,10 @@ They are a run folder like any ``uavcal detect train`` output, cut down to ``con
 holds the command): the two classes car and person, learnt from real aerial photos
 (``aerial_cars_kit``'s fixed 80 % split; trucks, buses and minibuses are cars), real photos
 with neither, frames rendered at EuRoC's 752x480 along procedural flights and real EuRoC and
-UZH-FPV trajectories with targets placed in view, and rendered nadir street frames, with
-the :data:`SHIPPED` preset.
+UZH-FPV trajectories with targets placed in view, and rendered nadir street frames: trained
+with the :data:`SHIPPED` preset (the script's defaults), then fine-tuned from those weights
+on the same sources with four times the rendered frames (2 a second), for the rendered
+follow view the demo flies (``--init``; the second command in the script's docstring).
 
 ``eval.json`` holds, per source, the figures and the command that reproduces them
 (``python experiments/detect_sources.py`` scores any run the same way): COCO mAP on a

@@ -39,7 +39,7 @@ import numpy as np
 from uavcal_jax.data.sequence import CameraCalibration, ImuCalibration, ImuData
 from uavcal_jax.errors import DataError
 from uavcal_jax.vio.body_state import BodyState
-from uavcal_jax.vio.config import VioConfig, resolve_camera
+from uavcal_jax.vio.config import VioConfig, imu_noise, resolve_camera
 from uavcal_jax.vio.failure import Failure, FailureCounters
 from uavcal_jax.vio.frame_estimate import FlowSeed, FrameEstimate, TrackedFrame
 from uavcal_jax.vio.frontend import FeatureTracker, FrameFeatures
@@ -80,7 +80,7 @@ class StereoVio:
             raise DataError("the IMU's T_BS is not the identity: the estimator's body frame is "
                             "the IMU frame; express the cameras' T_BS relative to the IMU")
         self.tracker = FeatureTracker(left, right, cfg.frontend)
-        self.noise = imu_calibration.noise
+        self.noise = imu_noise(cfg, imu_calibration.noise)
         self.imu = ImuStream(imu, imu_calibration.rate_hz, cfg.imu_samples)
         T = np.stack([np.asarray(left.T_BS, np.float64), np.asarray(right.T_BS, np.float64)])
         self.T_C0C1 = np.linalg.inv(T[0]) @ T[1]
