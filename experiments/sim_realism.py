@@ -69,9 +69,9 @@ from uavcal_jax.data.tum import write_tum
 from uavcal_jax.errors import DataError
 from uavcal_jax.imu import noise_stats
 from uavcal_jax.sim import realism
-from uavcal_jax.sim.config import SimConfig, stage_seeds
+from uavcal_jax.sim.config import IMU_ERRORS, SimConfig, stage_seeds
 from uavcal_jax.sim.hybrid import read_real, simulate_hybrid
-from uavcal_jax.sim.simulate import imu_calibration, simulate
+from uavcal_jax.sim.simulate import imu_calibration, imu_error_options, simulate
 from uavcal_jax.vio.frontend import FeatureTracker
 from uavcal_jax.vio.frontend_stats import corner_count, lk_pair_stats, tracking_stats
 
@@ -269,9 +269,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "out" / "sim_realism")
     ap.add_argument("--seed", type=int, default=SimConfig().seed, help="the simulator's seed")
     ap.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
-                    help="SimConfig fields for the rendered frames (as `uavcal simulate "
-                         "--set`), e.g. gain=1.5: measure a camera setting against the real "
-                         "frames")
+                    help="SimConfig fields (as `uavcal simulate --set`): the camera's for the "
+                         "rendered frames (e.g. gain=1.5, auto_exposure=true), the IMU errors' "
+                         "(imu_vibration=1 ...) for the simulated IMU: measure a setting "
+                         "against the real sensors")
     add_write_docs(ap)
     args = ap.parse_args(argv)
     if not (args.data / "mav0").is_dir():
@@ -293,12 +294,15 @@ def main(argv=None) -> int:
             real_seq = read_real(args.data)
             real_t, real0, real1 = stereo_frames(real_seq)
             first_imu = int(real_seq.imu.t_ns[0])
-            simulate_hybrid(args.data, args.out / "render", config,
+            # the hybrid keeps the real IMU: the simulated IMU's errors are compared below
+            frames_config = dataclasses.replace(config, **{
+                name: SimConfig.__dataclass_fields__[name].default for name in IMU_ERRORS})
+            simulate_hybrid(args.data, args.out / "render", frames_config,
                             start=(int(real_t[0]) - first_imu) * 1e-9,
                             duration=(int(real_t[-1]) - int(real_t[0])) * 1e-9,
                             progress=False, overwrite=True)
             sim_seq = read_euroc(args.out / "render")
-            _, still0, _ = render_static(real_seq, real_t, config, args.out)
+            _, still0, _ = render_static(real_seq, real_t, frames_config, args.out)
     except DataError as err:
         print(err, file=sys.stderr)
         return 2
@@ -318,7 +322,8 @@ def main(argv=None) -> int:
     stats_sim |= noise_statistics(still0)
 
     errors = realism.imu_errors(real_seq.ground_truth, real_seq.imu,
-                                imu_calibration(config).noise, stage_seeds(args.seed)["imu"])
+                                imu_calibration(config).noise, stage_seeds(args.seed)["imu"],
+                                **imu_error_options(config))
     dt = float(np.median(np.diff(errors["t_ns"]))) * 1e-9
     # the whole flight, and the micro slice's span: the MAV standing, its rotors running
     static = (errors["t_ns"] >= real_t[0]) & (errors["t_ns"] <= real_t[-1])

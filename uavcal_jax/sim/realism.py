@@ -170,8 +170,8 @@ def photon_transfer(frames, bins: int = 16, min_pixels: int = 50, flat_quantile:
             "levels": len(xs)}
 
 
-def imu_errors(ground_truth: GroundTruth, imu: ImuData, noise: ImuNoise, seed: int = 0
-               ) -> dict[str, np.ndarray]:
+def imu_errors(ground_truth: GroundTruth, imu: ImuData, noise: ImuNoise, seed: int = 0,
+               **sensor_errors) -> dict[str, np.ndarray]:
     """The error signals of a real IMU and of the simulator's IMU along the same flight.
 
     A smooth trajectory is fitted to the ground truth
@@ -188,6 +188,10 @@ def imu_errors(ground_truth: GroundTruth, imu: ImuData, noise: ImuNoise, seed: i
         imu: the real IMU samples; those inside the ground truth's span are used.
         noise: the simulator's IMU noise model.
         seed: the simulator's IMU noise seed.
+        sensor_errors: the simulated sensor's errors beyond its noise, as
+            :func:`~uavcal_jax.sim.imu_synth.synthesize_imu` takes them (``vibration``,
+            ``vibration_scale``, ``intrinsics``, ``time_offset``;
+            :func:`uavcal_jax.sim.simulate.imu_error_options` of a ``SimConfig``).
 
     Returns:
         ``t_ns`` (N,) int64; ``real`` and ``sim``: (N, 6) errors, gyro rad/s xyz then accel
@@ -200,7 +204,7 @@ def imu_errors(ground_truth: GroundTruth, imu: ImuData, noise: ImuNoise, seed: i
         raise ValueError("fewer than 4 IMU samples inside the ground truth's span")
     t_ns = t_ns[inside]
     exact = synthesize_imu(traj, t_ns=t_ns).imu
-    sim = synthesize_imu(traj, noise=noise, seed=seed, t_ns=t_ns).imu
+    sim = synthesize_imu(traj, noise=noise, seed=seed, t_ns=t_ns, **sensor_errors).imu
     real = np.concatenate([imu.gyro[inside], imu.accel[inside]], axis=1)
     ref = np.concatenate([exact.gyro, exact.accel], axis=1)
     return {"t_ns": t_ns, "real": real - ref,

@@ -95,8 +95,9 @@ from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import FitConfig, check_flight_limits, fit_trajectory_report
 
 __all__ = ["SimReport", "calib_dict", "check_out_dir", "finish_report", "imu_calibration",
-           "imu_intrinsics", "load_flight", "mount_imu", "render_into_report", "simulate",
-           "simulate_report", "with_offset", "write_recording_atomically"]
+           "imu_error_options", "imu_intrinsics", "load_flight", "mount_imu",
+           "render_into_report", "simulate", "simulate_report", "with_offset",
+           "write_recording_atomically"]
 
 
 @dataclass
@@ -192,6 +193,14 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
         traj = mount_imu(traj, imu_rotation(config))
     t_ns = t0_ns + period_ns * np.arange(n, dtype=np.int64)
     return traj, t_ns, info
+
+
+def imu_error_options(config: SimConfig) -> dict:
+    """``config``'s IMU errors beyond its noise (:data:`~uavcal_jax.sim.config.IMU_ERRORS`) as
+    :func:`~uavcal_jax.sim.imu_synth.synthesize_imu`'s keyword arguments."""
+    return {"vibration": EUROC_V101_VIBRATION if config.imu_vibration else None,
+            "vibration_scale": config.imu_vibration, "intrinsics": imu_intrinsics(config),
+            "time_offset": config.imu_time_offset}
 
 
 def imu_intrinsics(config: SimConfig) -> imu_synth.ImuIntrinsics | None:
@@ -325,11 +334,11 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
     imu_calib = imu_calibration(config)
     noise = imu_calib.noise if config.imu_noise else None
     turn_on = imu_synth.TurnOnBias()
-    vibration = EUROC_V101_VIBRATION if config.imu_vibration else None
+    errors = imu_error_options(config)
+    vibration = errors["vibration"]
     synth = imu_synth.synthesize_imu(
         traj, rate_hz=config.imu_rate_hz, noise=noise, seed=seeds["imu"], t_ns=imu_t_ns,
-        turn_on=turn_on, time_offset=config.imu_time_offset, vibration=vibration,
-        vibration_scale=config.imu_vibration, intrinsics=imu_intrinsics(config))
+        turn_on=turn_on, **errors)
     imu = synth.imu
     # the ground truth keeps the true biases: the offset is an extra error of the written IMU
     gt: GroundTruth = imu_synth.ground_truth_from_trajectory(
