@@ -418,6 +418,13 @@ def test_auto_exposure_recovers_a_brightness_step_with_its_time_constant():
     assert exposure_dark[-1] == pytest.approx(ae.max_exposure_s)
     assert gain_dark[-1] == pytest.approx(ae.max_gain)
     assert 0.5 * ae.target_dn < dn_dark[-1] < ae.target_dn
+    # a recording starts with the camera's AE already settled (the sensor's own 2 ms is 2.5x
+    # too dark): the first frame is at the target; not settled, it converges from 2 ms
+    dim = SN.SensorModel(exposure_s=2e-3)
+    still = np.stack([L0 * texture] * 5)
+    for settled, first in ((True, ae.target_dn), (False, 0.4 * ae.target_dn)):
+        e, g = AE.exposure_schedule(still, dt, dim, AE.AutoExposure(start_settled=settled))
+        assert AE.metered_dn(still[0], e[0], g[0], dim) == pytest.approx(first, rel=1e-6)
     # the EuRoC preset is a valid configuration and reaches the frame renderer
     euroc = SimConfig(**EUROC_CAMERA_PRESET)
     euroc.validate()

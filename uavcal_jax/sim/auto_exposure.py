@@ -65,6 +65,9 @@ class AutoExposure:
         time_constant_s: first-order time constant of the loop, seconds.
         max_exposure_s, min_exposure_s: exposure range, seconds.
         max_gain: gain range is ``[1, max_gain]``.
+        start_settled: the first frame's settings are those the loop settles at on it (a
+            camera that ran before the recording began, as EuRoC's); ``False``: the
+            sensor's own exposure and gain, the loop converging from there.
     """
 
     target_dn: float = AE_TARGET_DN
@@ -72,6 +75,12 @@ class AutoExposure:
     max_exposure_s: float = MAX_EXPOSURE_S
     min_exposure_s: float = MIN_EXPOSURE_S
     max_gain: float = MAX_GAIN
+    start_settled: bool = True
+
+
+#: Full steps the loop takes on the first frame to settle (clipped metering converges
+#: geometrically; a few steps reach the target to well under a DN).
+SETTLE_STEPS = 30
 
 
 def _split(brightness: float, ae: AutoExposure) -> tuple[float, float]:
@@ -96,7 +105,8 @@ def exposure_schedule(metering: np.ndarray, dt_s: np.ndarray | float, model: Sen
     Args:
         metering: (N, ...) each frame's metering radiance (a low-resolution render, vignetted).
         dt_s: seconds from each frame to the next, scalar or (N - 1,).
-        model: the sensor; its ``exposure_s`` and ``gain`` are the first frame's.
+        model: the sensor; its ``exposure_s`` and ``gain`` are where the loop starts (the
+            first frame's unless ``ae.start_settled``).
         ae: the controller's settings.
 
     Returns:
@@ -106,6 +116,11 @@ def exposure_schedule(metering: np.ndarray, dt_s: np.ndarray | float, model: Sen
     dt = np.broadcast_to(np.asarray(dt_s, np.float64), (max(n - 1, 0),))
     exposure, gain = np.zeros(n), np.zeros(n)
     e, g = _split(model.exposure_s * model.gain, ae)
+    for _ in range(SETTLE_STEPS if ae.start_settled and n else 0):
+        step = np.log(ae.target_dn / max(metered_dn(metering[0], e, g, model), 1.0))
+        if abs(step) < 1e-6:
+            break
+        e, g = _split(e * g * np.exp(step), ae)
     for k in range(n):
         exposure[k], gain[k] = e, g
         if k + 1 < n:
