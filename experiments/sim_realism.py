@@ -69,7 +69,13 @@ from uavcal_jax.data.tum import write_tum
 from uavcal_jax.errors import DataError
 from uavcal_jax.imu import noise_stats
 from uavcal_jax.sim import realism
-from uavcal_jax.sim.config import IMU_ERRORS, SimConfig, stage_seeds
+from uavcal_jax.sim.config import (
+    EUROC_CAMERA_PRESET,
+    EUROC_IMU_REALISM,
+    IMU_ERRORS,
+    SimConfig,
+    stage_seeds,
+)
 from uavcal_jax.sim.hybrid import read_real, simulate_hybrid
 from uavcal_jax.sim.simulate import imu_calibration, imu_error_options, simulate
 from uavcal_jax.vio.frontend import FeatureTracker
@@ -268,6 +274,10 @@ def main(argv=None) -> int:
                     help="the EuRoC V1_01 micro slice (the folder holding mav0)")
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "out" / "sim_realism")
     ap.add_argument("--seed", type=int, default=SimConfig().seed, help="the simulator's seed")
+    ap.add_argument("--preset", choices=("none", "euroc"), default="none",
+                    help="euroc: EuRoC's camera and IMU realism (sim.config's "
+                         "EUROC_CAMERA_PRESET and EUROC_IMU_REALISM), before --set "
+                         "[default: %(default)s, the simulator's defaults]")
     ap.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                     help="SimConfig fields (as `uavcal simulate --set`): the camera's for the "
                          "rendered frames (e.g. gain=1.5, auto_exposure=true), the IMU errors' "
@@ -280,8 +290,9 @@ def main(argv=None) -> int:
               "checkout)", file=sys.stderr)
         return 2
     try:
-        config = apply_overrides(SimConfig(seed=args.seed, depth=False, targets=False),
-                                 args.set)
+        preset = {**EUROC_CAMERA_PRESET, **EUROC_IMU_REALISM} if args.preset == "euroc" else {}
+        config = apply_overrides(SimConfig(seed=args.seed, depth=False, targets=False,
+                                           **preset), args.set)
     except DataError as err:
         print(f"--set: {err}", file=sys.stderr)
         return 2
