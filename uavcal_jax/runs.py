@@ -25,6 +25,10 @@ run folder and what differs (:class:`~uavcal_jax.errors.DataError`), not an orba
 Exact resume: the data of an epoch is a pure function of the epoch (:class:`Loop`), so the
 checkpoint's position is the data stream's whole state, and a run stopped after any epoch and
 resumed trains on what the uninterrupted run trained on.
+
+One module over 450 lines, one job: a run folder's life, from its checkpoints and metrics rows
+to where an evaluation of it may write (:func:`results_folder`). The loop relies on every rule
+of the folder, so they stay in one place.
 """
 
 from __future__ import annotations

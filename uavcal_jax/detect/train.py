@@ -78,14 +78,13 @@ def initial_state(det_cfg: DetectorConfig, cfg: TrainConfig, tx, variables: dict
 
 
 def _resolve(paths: RunPaths, dataset: DetectionDataset, det_cfg: DetectorConfig,
-             cfg: TrainConfig, resume: bool, val_dataset, log):
+             cfg: TrainConfig, resume: bool, val_dataset, log, start):
     """The configurations and the (train, val) sets of this call: the saved ones when
     resuming (``cfg.epochs`` may be raised), else fresh ones with autoanchor (or the model
     of ``cfg.init_from`` when fine-tuning)."""
     if not resume:
         train_set, val_set = prepare_split(dataset, cfg, val_dataset)
-        start = starting_weights(cfg, dataset)
-        if start is not None:
+        if start is not None:  # fine-tuning: the source's model (``starting_weights``)
             return start[0], cfg, train_set, val_set
         wh = label_sizes(train_set, det_cfg.img_size)
         if cfg.autoanchor and len(wh):  # YOLOv5's train.py: fit anchors to the labels
@@ -136,8 +135,10 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
     if len(dataset) == 0:
         raise DataError("the data set has no images", dataset.root)
     det_cfg = det_cfg.replace(num_classes=max(1, dataset.num_classes))
+    # the source run is read once: its model here, its weights in ``init`` (a fresh run only)
+    start = None if resume else starting_weights(cfg, dataset)
     det_cfg, cfg, train_set, val_set = _resolve(paths, dataset, det_cfg, cfg, resume,
-                                                val_dataset, log)
+                                                val_dataset, log, start)
     crops = cfg.augment is not None and cfg.augment.crop_scale is not None
     loader = DetectionLoader(train_set, cfg.augment.crop_size if crops else det_cfg.img_size,
                              cfg.batch_size, augment=cfg.augment,
@@ -158,7 +159,6 @@ def train(dataset: DetectionDataset | str | Path, det_cfg: DetectorConfig, cfg: 
         save_split(paths.split, train_set.image_ids, val_set.image_ids if val_set else [],
                    val_fraction=cfg.val_fraction, seed=cfg.split_seed,
                    external_val=val_dataset is not None)
-        start = starting_weights(cfg, dataset)
         return initial_state(det_cfg, cfg, tx, None if start is None else start[1])
 
     def batches(epoch: int):

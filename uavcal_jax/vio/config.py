@@ -18,7 +18,8 @@ The pixel thresholds of the front end and the keyframe decision are instead expr
 :data:`NOMINAL_FOCAL_PX`, a lens-independent unit.
 
 One module, over 450 lines: one settings tree, most of its length the documentation of each
-default and the reason for it; the resolution against a recording's rig belongs beside it.
+default and the reason for it; the resolution against a recording's rig (its camera, its
+IMU noise: :func:`imu_noise`) belongs beside it.
 """
 
 from __future__ import annotations
