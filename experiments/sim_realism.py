@@ -5,7 +5,8 @@ Frames: the micro slice of ``../shared/data/euroc_v101_micro`` (95 stereo frames
 MAV standing still) and the simulator's frames rendered along the same poses (V1_01's ground
 truth over the same span, EuRoC's V1_01 calibration, the frames on the real frames' own
 timestamps: a hybrid recording, :func:`uavcal_jax.sim.hybrid.simulate_hybrid`, with the
-simulator's default camera: exposure, gain, shot and read noise, motion blur). The scene is the
+simulator's default camera: exposure, gain, shot and read noise, motion blur, EuRoC's
+auto-exposure and vignetting; ``--preset ideal`` turns every realism effect off). The scene is the
 simulator's, not the Vicon room: the statistics compare what a camera records (brightness,
 contrast, texture, noise) and what the VIO's front end gets from it, not the content. On cam0:
 
@@ -22,7 +23,8 @@ contrast, texture, noise) and what the VIO's front end gets from it, not the con
   tracker's own track survival and stereo inlier rate (:mod:`uavcal_jax.vio.frontend_stats`).
 
 IMU: the real V1_01 IMU (the whole 145 s flight) and the simulator's (EuRoC's ADIS16448 noise
-model, the default) over the same ground truth, each minus the exact measurement of the fitted
+model and, by default, EuRoC's rotor vibration, scale, misalignment and g-sensitivity) over the
+same ground truth, each minus the exact measurement of the fitted
 flight (:func:`uavcal_jax.sim.realism.imu_errors`), per sensor: the Allan deviation at 0.1, 1
 and 10 s, the white-noise density and bias instability read off the Allan curve, and from the
 power spectral density the RMS above 15 Hz (rotor vibration) and its peak frequency
@@ -36,7 +38,8 @@ statistics more than 25 % off, and, last, one JSON object ``{statistic: {"real":
 y}}``. Writes PNGs (an example frame of each, intensity histograms, gradient distributions,
 IMU spectra, Allan curves) and the rendered recordings (``render/``, ``render_static/``) into
 ``--out``.
-``--write-docs`` puts the table into the ``sim_realism`` section of docs/results.md.
+``--write-docs`` puts the table into the ``sim_realism`` section of docs/results.md
+(``--preset ideal --write-docs ideal``: ``sim_realism.ideal``).
 
 Usage::
 
@@ -70,8 +73,7 @@ from uavcal_jax.errors import DataError
 from uavcal_jax.imu import noise_stats
 from uavcal_jax.sim import realism
 from uavcal_jax.sim.config import (
-    EUROC_CAMERA_PRESET,
-    EUROC_IMU_REALISM,
+    IDEAL_SENSORS,
     IMU_ERRORS,
     SimConfig,
     stage_seeds,
@@ -274,10 +276,11 @@ def main(argv=None) -> int:
                     help="the EuRoC V1_01 micro slice (the folder holding mav0)")
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "out" / "sim_realism")
     ap.add_argument("--seed", type=int, default=SimConfig().seed, help="the simulator's seed")
-    ap.add_argument("--preset", choices=("none", "euroc"), default="none",
-                    help="euroc: EuRoC's camera and IMU realism (sim.config's "
-                         "EUROC_CAMERA_PRESET and EUROC_IMU_REALISM), before --set "
-                         "[default: %(default)s, the simulator's defaults]")
+    ap.add_argument("--preset", choices=("euroc", "ideal"), default="euroc",
+                    help="euroc: the simulator's defaults, EuRoC's camera and IMU realism "
+                         "(sim.config's EUROC_CAMERA_PRESET and EUROC_IMU_REALISM); ideal: "
+                         "every realism effect off (IDEAL_SENSORS), before --set "
+                         "[default: %(default)s]")
     ap.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                     help="SimConfig fields (as `uavcal simulate --set`): the camera's for the "
                          "rendered frames (e.g. gain=1.5, auto_exposure=true), the IMU errors' "
@@ -290,7 +293,7 @@ def main(argv=None) -> int:
               "checkout)", file=sys.stderr)
         return 2
     try:
-        preset = {**EUROC_CAMERA_PRESET, **EUROC_IMU_REALISM} if args.preset == "euroc" else {}
+        preset = IDEAL_SENSORS if args.preset == "ideal" else {}
         config = apply_overrides(SimConfig(seed=args.seed, depth=False, targets=False,
                                            **preset), args.set)
     except DataError as err:
@@ -306,8 +309,8 @@ def main(argv=None) -> int:
             real_t, real0, real1 = stereo_frames(real_seq)
             first_imu = int(real_seq.imu.t_ns[0])
             # the hybrid keeps the real IMU: the simulated IMU's errors are compared below
-            frames_config = dataclasses.replace(config, **{
-                name: SimConfig.__dataclass_fields__[name].default for name in IMU_ERRORS})
+            frames_config = dataclasses.replace(config, **{name: IDEAL_SENSORS[name]
+                                                           for name in IMU_ERRORS})
             simulate_hybrid(args.data, args.out / "render", frames_config,
                             start=(int(real_t[0]) - first_imu) * 1e-9,
                             duration=(int(real_t[-1]) - int(real_t[0])) * 1e-9,

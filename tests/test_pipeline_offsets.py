@@ -35,7 +35,7 @@ from uavcal_jax.pipeline.offset_estimate import SIX_CHANNELS, OffsetEstimate, Of
 from uavcal_jax.pipeline.offset_estimators import METHODS, configure_method
 from uavcal_jax.pipeline.predict_offset import known_offset, predict_offset, score
 from uavcal_jax.pipeline.vio_bias import VioBiasOptions, tail_median
-from uavcal_jax.sim.config import SimConfig
+from uavcal_jax.sim.config import IDEAL_IMU, SimConfig
 from uavcal_jax.sim.simulate import simulate
 
 #: The offset the simulator writes into the IMU (sim_config.json) and the one --inject adds.
@@ -53,9 +53,12 @@ SELF_CALIB_GYRO_TOLERANCE = 5e-3
 def flight(tmp_path_factory):
     trajectory = shared_path("trajectories", "euroc", "V2_01_easy.txt")
     out = tmp_path_factory.mktemp("offsets") / "flight"
+    # an IMU with its data sheet's noise only: V1_01's vibration moves a 4 s mean by 1e-3
+    # rad/s, more than the bounds here (visual-ls 2.4e-3 off with it); the constant's recovery
+    # is this file's subject, the realistic IMU's cost the tables' (calib_blind)
     simulate(SimConfig(trajectory=str(trajectory), start=5.0, duration=DURATION_S, seed=4,
                        resolution=(376, 240), camera_rate_hz=10.0, depth=False, targets=False,
-                       imu_offset=RECORDED), out, progress=False)
+                       imu_offset=RECORDED, **IDEAL_IMU), out, progress=False)
     return out
 
 

@@ -29,23 +29,28 @@ def test_rendered_once_then_reused_and_keyed_by_config(tmp_path):
     assert cached_simulation(other, tmp_path, "tiny", progress=False) != first
 
 
-def test_a_later_field_unset_keeps_the_tag_and_set_changes_it():
-    """``imu_rotation_deg`` came after caches were tagged: unset, the tag is the hash of the
-    other fields (the folders written before stay valid); set, it is another folder."""
+def test_a_later_field_off_keeps_the_tag_and_the_realistic_defaults_change_it():
+    """``imu_rotation_deg`` and the realism options came after caches were tagged: off (as
+    every recording before them was), the tag is the hash of the other fields (the folders
+    written before stay valid); set, or at the realistic defaults, it is another folder."""
+    import dataclasses
     import hashlib
 
+    from uavcal_jax.sim.config import IDEAL_SENSORS
+
+    ideal = dataclasses.replace(TINY, **IDEAL_SENSORS)
     later = ("imu_rotation_deg", "vignetting", "auto_exposure", "ae_target_dn",
              "ae_time_constant_s", "line_delay_s", "imu_vibration", "imu_scale",
              "imu_misalignment", "imu_g_sensitivity", "imu_time_offset")
-    fields = {k: v for k, v in TINY.to_dict().items()
+    fields = {k: v for k, v in ideal.to_dict().items()
               if k not in ("png_workers", "batch_size", *later)}
     before = hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:8]
-    assert config_tag(TINY) == before
-    turned = SimConfig(**{**TINY.to_dict(), "resolution": (32, 24),
-                          "imu_rotation_deg": (0.0, -90.0, 0.0)})
+    assert config_tag(ideal) == before
+    assert config_tag(TINY) != before  # EuRoC's realism is on by default
+    turned = dataclasses.replace(ideal, imu_rotation_deg=(0.0, -90.0, 0.0))
     assert config_tag(turned) != before
-    assert config_tag(SimConfig(**{**TINY.to_dict(), "vignetting": 1.1})) != before
-    assert config_tag(SimConfig(**{**TINY.to_dict(), "imu_vibration": 1.0})) != before
+    assert config_tag(dataclasses.replace(ideal, vignetting=1.1)) != before
+    assert config_tag(dataclasses.replace(ideal, imu_vibration=1.0)) != before
 
 
 def test_a_killed_render_is_not_reused(tmp_path):

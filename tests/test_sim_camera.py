@@ -23,7 +23,7 @@ from uavcal_jax.sim import motion_blur as MB
 from uavcal_jax.sim import render as R
 from uavcal_jax.sim import sensor as SN
 from uavcal_jax.sim import sensor_fit as SF
-from uavcal_jax.sim.config import EUROC_CAMERA_PRESET, SimConfig, sensor_model
+from uavcal_jax.sim.config import EUROC_CAMERA_PRESET, IDEAL_SENSORS, SimConfig, sensor_model
 from uavcal_jax.sim.frames import (
     CameraEffects,
     camera_effects,
@@ -307,7 +307,8 @@ def test_effects_off_is_the_ideal_render_and_noise_is_per_frame():
                                   np.asarray(depth_to_millimetres(old.depth, jnp)))
     assert camera_effects(SimConfig(ideal_camera=True)) == CameraEffects()
 
-    full = camera_effects(SimConfig(exposure_ms=5.0, blur_samples=3))
+    # the basic camera model (fixed exposure and gain; AE and vignetting have their own tests)
+    full = camera_effects(SimConfig(exposure_ms=5.0, blur_samples=3, **IDEAL_SENSORS))
     noisy = run(full)
     again = run(full)
     for c in (0, 1):
@@ -425,13 +426,15 @@ def test_auto_exposure_recovers_a_brightness_step_with_its_time_constant():
     for settled, first in ((True, ae.target_dn), (False, 0.4 * ae.target_dn)):
         e, g = AE.exposure_schedule(still, dt, dim, AE.AutoExposure(start_settled=settled))
         assert AE.metered_dn(still[0], e[0], g[0], dim) == pytest.approx(first, rel=1e-6)
-    # the EuRoC preset is a valid configuration and reaches the frame renderer
+    # the EuRoC preset is the default, valid, and reaches the frame renderer
     euroc = SimConfig(**EUROC_CAMERA_PRESET)
     euroc.validate()
     effects = camera_effects(euroc)
     assert effects.auto_exposure and effects.vignetting > 0 and effects.line_delay_s == 0
-    assert camera_effects(SimConfig()) == CameraEffects(
-        sensor=sensor_model(SimConfig()), noise=True, blur_samples=5)  # all off by default
+    assert camera_effects(SimConfig()) == effects
+    ideal = SimConfig(**IDEAL_SENSORS)
+    assert camera_effects(ideal) == CameraEffects(
+        sensor=sensor_model(ideal), noise=True, blur_samples=5)  # every effect off
 
 
 def _sliding(speed: float) -> Trajectory:

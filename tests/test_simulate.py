@@ -37,6 +37,7 @@ from uavcal_jax.errors import DataError, DataRepairWarning
 from uavcal_jax.imu.noise import ImuNoise
 from uavcal_jax.imu.offset import remove_offset
 from uavcal_jax.sim.config import (
+    IDEAL_SENSORS,
     SimConfig,
     camera_calibrations,
     scale_calibration,
@@ -44,7 +45,14 @@ from uavcal_jax.sim.config import (
     stage_seeds,
 )
 from uavcal_jax.sim.imu_synth import synthesize_imu
-from uavcal_jax.sim.simulate import imu_calibration, load_flight, simulate, simulate_report
+from uavcal_jax.sim.simulate import (
+    imu_calibration,
+    imu_error_options,
+    intrinsic_error,
+    load_flight,
+    simulate,
+    simulate_report,
+)
 
 EUROC_IMU = ImuCalibration(rate_hz=200.0, T_BS=np.eye(4),
                            noise=ImuNoise(gyro_noise_density=1.6968e-04,
@@ -311,10 +319,15 @@ def test_ground_truth_equals_trajectory(small_sim):
     np.testing.assert_array_equal(gt.position, state.position)
     np.testing.assert_array_equal(gt.quaternion, state.quaternion)
     np.testing.assert_array_equal(gt.velocity, state.velocity)
-    # The IMU is the exact IMU plus the ground truth's biases plus white noise.
-    exact = synthesize_imu(traj, 200.0, None, t_ns=t_ns).imu
-    white_g = seq.imu.gyro - exact.gyro - gt.bias_gyro
-    white_a = seq.imu.accel - exact.accel - gt.bias_accel
+    # The IMU is the exact IMU (with the configuration's vibration, scale, misalignment and
+    # g-sensitivity: EuRoC's by default) plus the sensor's biases plus white noise; the ground
+    # truth's bias columns are those biases plus the intrinsics' error on the motion.
+    exact = synthesize_imu(traj, 200.0, None, stage_seeds(SMALL.seed)["imu"], t_ns=t_ns,
+                           **imu_error_options(SMALL)).imu
+    extra_g, extra_a = intrinsic_error(traj, t_ns, SMALL)
+    assert np.abs(extra_a).max() > 1e-3  # the default IMU has them
+    white_g = seq.imu.gyro - exact.gyro - (gt.bias_gyro - extra_g)
+    white_a = seq.imu.accel - exact.accel - (gt.bias_accel - extra_a)
     noise = ImuNoise()
     np.testing.assert_allclose(white_g.std(), noise.gyro_noise_density * np.sqrt(200), rtol=0.15)
     np.testing.assert_allclose(white_a.std(), noise.accel_noise_density * np.sqrt(200),
@@ -343,12 +356,18 @@ def test_no_frames_and_exact_imu(tmp_path):
     seq = _read_strict(tmp_path / "rec")
     assert seq.cameras == {} and seq.depth == {} and seq.targets is None
     traj, t_ns = _flight(config)
-    exact = synthesize_imu(traj, 200.0, None, t_ns=t_ns)
+    exact = synthesize_imu(traj, 200.0, None, stage_seeds(config.seed)["imu"], t_ns=t_ns,
+                           **imu_error_options(config))
     np.testing.assert_array_equal(seq.imu.t_ns, exact.imu.t_ns)
     np.testing.assert_array_equal(seq.imu.gyro, exact.imu.gyro)
     np.testing.assert_array_equal(seq.imu.accel, exact.imu.accel)
-    np.testing.assert_array_equal(seq.ground_truth.bias_gyro, 0.0)
-    np.testing.assert_array_equal(seq.ground_truth.bias_accel, 0.0)
+    # no sensor bias: the bias columns are the intrinsics' error alone
+    extra_g, extra_a = intrinsic_error(traj, t_ns, config)
+    np.testing.assert_allclose(seq.ground_truth.bias_gyro, extra_g, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(seq.ground_truth.bias_accel, extra_a, rtol=0, atol=1e-12)
+    ideal = SimConfig(duration=2.0, seed=5, frames=False, imu_noise=False, **IDEAL_SENSORS)
+    simulate(ideal, tmp_path / "ideal", progress=False)
+    np.testing.assert_array_equal(_read_strict(tmp_path / "ideal").ground_truth.bias_accel, 0.0)
 
 
 def test_imu_offset_is_an_extra_constant_error(tmp_path):

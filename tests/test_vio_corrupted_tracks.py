@@ -172,7 +172,8 @@ def test_corrupted_tracks_reset_within_1s_and_recover_within_3s(flight, run):
     assert all(f.has_pose for f in frames) and np.all(np.isfinite(p_est))
     err = np.linalg.norm(p_est - p_true, axis=1)
     t0, t1 = CORRUPT_S
-    # healthy before: no reset, and the fixed alignment fits (measured: 19 mm at most)
+    # healthy before: no reset, and the fixed alignment fits (measured: 40 mm at most on the
+    # simulator's EuRoC-like IMU, 29 mm on an ideal one)
     assert not any(f.status == "reset" for f, s in zip(frames, t, strict=True) if s < t0)
     assert err[(t > 0.5) & (t < t0)].max() < 0.05
     # the reset is flagged within 1 s of the corruption's start (measured: 0.10 s, on the
@@ -186,7 +187,8 @@ def test_corrupted_tracks_reset_within_1s_and_recover_within_3s(flight, run):
     k_init = next(k for k in range(k_reset + 1, len(frames)) if frames[k].status == "initialized")
     assert all(f.status == "coasting" for f in frames[k_reset + 1:k_init])
     # re-initialised while moving within 3 s after the corruption ends (measured: 0.45 s), and
-    # within 0.2 m of the truth from then on (measured: 0.10 m at most)
+    # within 0.2 m of the truth from then on (measured: 0.16 m at most; the coast starts from
+    # the last state no failure test suspected: from the reset frame's own it was 0.56 m)
     assert t[k_init] < t1 + RECOVER_WITHIN_S
     assert frames[k_init].reason == "moving"
     assert err[k_init:].max() < RECOVER_M, err[k_init:].max()

@@ -23,7 +23,7 @@ from uavcal_jax.argtypes import (
 from uavcal_jax.config import apply_overrides, valid_keys
 from uavcal_jax.data import euroc_format as fmt
 from uavcal_jax.errors import DataError, DataRepairWarning, FlightLimitWarning
-from uavcal_jax.sim.config import BODY_FRAMES, COLORS, SimConfig
+from uavcal_jax.sim.config import BODY_FRAMES, COLORS, IDEAL_SENSORS, SimConfig
 
 _D = SimConfig()
 
@@ -44,9 +44,12 @@ residual and the flight's peak specific force and angular rate (flight.trajector
 flight beyond what a drone flies is simulated with a one-line warning; one no airframe could
 fly (a broken file) is refused (the limits: uavcal_jax.sim.trajectory_fit.FitConfig). Frames
 image like EuRoC's MT9V034 (exposure x gain calibrated to the real V1_01 frames' brightness,
-shot and read noise measured on them, motion blur over the exposure) unless --ideal-camera. The
-same options and seed give byte-identical files. The output is written to a temporary folder
-beside DIR and renamed at the end: a folder named DIR is always complete."""
+shot and read noise measured on them, motion blur over the exposure) unless --ideal-camera.
+EuRoC's rig is the default: the cameras' auto-exposure and vignetting, the IMU's rotor
+vibration (V1_01's spectrum), scale factors, axis misalignment and g-sensitivity
+(uavcal_jax.sim.config: EUROC_CAMERA_PRESET, EUROC_IMU_REALISM); --ideal-sensors turns every
+one off. The same options and seed give byte-identical files. The output is written to a
+temporary folder beside DIR and renamed at the end: a folder named DIR is always complete."""
 
 EPILOG = """\
 examples:
@@ -115,6 +118,11 @@ def add_sim_arguments(parser: argparse.ArgumentParser) -> None:
     then ``--set``."""
     for title, flags in SIM_FLAGS.items():
         add_config_flags(parser.add_argument_group(title), SimConfig, flags)
+    parser.add_argument("--ideal-sensors", action="store_true",
+                        help="turn off every realism effect of EuRoC's rig (auto-exposure, "
+                             "vignetting, rotor vibration, IMU scale, misalignment and "
+                             "g-sensitivity: sim.config's IDEAL_SENSORS), before the options "
+                             "above and --set")
     parser.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="set SimConfig fields (keys below), applied after the options "
                              "above; repeatable; an unknown key is an error naming it")
@@ -136,7 +144,8 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     if options.get("start", 0.0) < 0:
         raise DataError(f"--start must be >= 0 seconds, got {options['start']:g}",
                         options.get("trajectory"))
-    return apply_overrides(apply_overrides(SimConfig(), options), args.set)
+    base = SimConfig(**IDEAL_SENSORS) if getattr(args, "ideal_sensors", False) else SimConfig()
+    return apply_overrides(apply_overrides(base, options), args.set)
 
 
 def register(subparsers) -> None:

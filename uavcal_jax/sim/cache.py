@@ -10,7 +10,6 @@ sequence behind, and a rerun renders only what is missing.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import shutil
@@ -18,17 +17,18 @@ from pathlib import Path
 
 from uavcal_jax.data.sim_config import SIM_CONFIG_FILE
 from uavcal_jax.data.tum import read_tum
-from uavcal_jax.sim.config import IMU_ERRORS, SimConfig
+from uavcal_jax.sim import auto_exposure as ae
+from uavcal_jax.sim.config import IDEAL_SENSORS, SimConfig
 from uavcal_jax.sim.simulate import simulate
 
 __all__ = ["cached_simulation", "config_tag", "trajectory_span"]
 
 
-#: SimConfig fields added after caches were tagged, left out of the tag while at their
-#: defaults (off).
-_LATER_FIELDS = ("imu_rotation_deg", "vignetting", "auto_exposure", "ae_target_dn",
-                 "ae_time_constant_s", "line_delay_s", *IMU_ERRORS)
-_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SimConfig)}
+#: SimConfig fields added after caches were tagged, and the value each had before (off): a
+#: field at that value is left out of the tag, so that older caches keep theirs. The realism
+#: options' defaults are now on, so a default configuration tags differently from an old one.
+_LATER_FIELDS = {"imu_rotation_deg": None, "ae_target_dn": ae.AE_TARGET_DN,
+                 "ae_time_constant_s": ae.AE_TIME_CONSTANT_S, **IDEAL_SENSORS}
 
 
 def config_tag(config: SimConfig) -> str:
@@ -38,8 +38,8 @@ def config_tag(config: SimConfig) -> str:
                                                                       "batch_size")}
     if fields.get("trajectory"):
         fields["trajectory"] = Path(fields["trajectory"]).name
-    for later in _LATER_FIELDS:  # added since caches were written: unset, they keep the tag
-        if fields.get(later) == _DEFAULTS[later]:
+    for later, off in _LATER_FIELDS.items():  # added since caches were written: off, the
+        if fields.get(later) == off:                # tag stays what it was
             fields.pop(later, None)
     text = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:8]

@@ -39,6 +39,8 @@ __all__ = [
     "COLORS",
     "EUROC_CAMERA_PRESET",
     "EUROC_IMU_REALISM",
+    "IDEAL_IMU",
+    "IDEAL_SENSORS",
     "IMU_ERRORS",
     "LOW_RESOLUTION",
     "SimConfig",
@@ -63,31 +65,28 @@ BODY_FRAMES = ("euroc", "flu")
 LOW_RESOLUTION: tuple[int, int] = (EUROC_RESOLUTION[0] // 2, EUROC_RESOLUTION[1] // 2)
 #: Stages with their own random stream, in :func:`stage_seeds`' order.
 STAGES = ("flight", "imu", "scene", "camera")
-#: EuRoC's VI-sensor camera effects beyond the defaults (``dataclasses.replace(config,
-#: **EUROC_CAMERA_PRESET)``, or ``--set auto_exposure=true vignetting=1.1``): its MT9V034s
-#: run auto-exposure and are global shutter (``line_delay_s`` stays 0). The vignetting is
-#: measured on the static micro slice (``python experiments/camera_fit.py
-#: ../shared/data/euroc_v101_micro``, which also checks ``sim.sensor``'s noise constants); the
-#: AE's target is that slice's mean, its time constant typical (a static slice cannot show
-#: it): :mod:`uavcal_jax.sim.auto_exposure`. Off by default until the VIO tables are rerun.
+#: EuRoC's VI-sensor camera effects, on by default: its MT9V034s run auto-exposure and are
+#: global shutter (``line_delay_s`` stays 0). The vignetting is measured on the static micro
+#: slice (``python experiments/camera_fit.py ../shared/data/euroc_v101_micro``, which also
+#: checks ``sim.sensor``'s noise constants); the AE's target is that slice's mean, its time
+#: constant typical (a static slice cannot show it): :mod:`uavcal_jax.sim.auto_exposure`.
 EUROC_CAMERA_PRESET: dict[str, Any] = {"auto_exposure": True, "vignetting": EUROC_VIGNETTING,
                                        "line_delay_s": 0.0}
 
-#: The simulated IMU's errors beyond its noise (SimConfig fields; all off by default).
+#: The simulated IMU's errors beyond its noise (SimConfig fields).
 IMU_ERRORS = ("imu_vibration", "imu_scale", "imu_misalignment", "imu_g_sensitivity",
               "imu_time_offset")
 #: The IMU error settings given as number lists, and their lengths.
 _IMU_ERROR_COUNTS = {"imu_scale": 6, "imu_misalignment": 6, "imu_g_sensitivity": 9}
 _DEG = float(np.pi / 180.0)
 _G = 9.81
-#: EuRoC-like IMU errors, off by default (turning them on moves the VIO tables, which must be
-#: rerun): ``dataclasses.replace(config, **EUROC_IMU_REALISM)``, or ``--set`` with these
-#: values. The vibration is V1_01's measured spectrum; the rest are ADIS16448-class magnitudes
-#: (its data sheet: sensitivity tolerance about 1 %, axis-to-axis misalignment 0.05 degrees for
-#: the gyros and 0.2 degrees for the accelerometers, linear-acceleration effect on the gyro
-#: bias about 0.01 degree/s per g), one fixed draw of signs and sizes so that runs compare.
-#: The time offset stays 0: EuRoC's VI-sensor triggers its cameras on the IMU's clock
-#: (hardware sync); a few milliseconds is typical of unsynchronised rigs.
+#: EuRoC-like IMU errors, on by default. The vibration is V1_01's measured spectrum; the rest
+#: are ADIS16448-class magnitudes (its data sheet: sensitivity tolerance about 1 %, axis-to-axis
+#: misalignment 0.05 degrees for the gyros and 0.2 degrees for the accelerometers,
+#: linear-acceleration effect on the gyro bias about 0.01 degree/s per g), one fixed draw of
+#: signs and sizes so that runs compare. The time offset stays 0: EuRoC's VI-sensor triggers
+#: its cameras on the IMU's clock (hardware sync); a few milliseconds is typical of
+#: unsynchronised rigs.
 EUROC_IMU_REALISM: dict = {
     "imu_vibration": 1.0,
     "imu_scale": (3e-3, -2e-3, 4e-3, -2.5e-3, 1.5e-3, 3.5e-3),
@@ -96,6 +95,21 @@ EUROC_IMU_REALISM: dict = {
                                                        -0.005, -0.007, 0.002, 0.01)),
     "imu_time_offset": 0.0,
 }
+
+
+#: Every realism effect above off: an ideal camera response (fixed exposure and gain, no
+#: vignetting) and an IMU with only its white noise and bias random walk, as the simulator was
+#: before issue 42 (``dataclasses.replace(config, **IDEAL_SENSORS)``, ``sim_realism.py --preset
+#: ideal``). For studies that isolate one effect; the defaults are EuRoC's rig.
+IDEAL_SENSORS: dict[str, Any] = {"auto_exposure": False, "vignetting": 0.0, "line_delay_s": 0.0,
+                                 "imu_vibration": 0.0, "imu_scale": None,
+                                 "imu_misalignment": None, "imu_g_sensitivity": None,
+                                 "imu_time_offset": 0.0}
+#: The IMU's errors beyond its data-sheet noise off (the cameras' realism kept): for studies
+#: of a constant offset's recovery to 1e-4, which the vibration (V1_01's 0.05 rad/s and 1.4
+#: m/s^2 RMS: its broadband part moves a 4 s mean by about 1e-3 rad/s) and the errors varying
+#: with the motion (scale, misalignment, g-sensitivity) would blur.
+IDEAL_IMU: dict[str, Any] = {name: IDEAL_SENSORS[name] for name in IMU_ERRORS}
 
 
 @dataclass(frozen=True)
@@ -144,12 +158,13 @@ class SimConfig:
         imu_vibration: rotor vibration, as a multiple of the amplitudes of EuRoC V1_01's
             measured spectrum (:data:`uavcal_jax.sim.imu_vibration.EUROC_V101_VIBRATION`:
             humps at 17.2, 27.3, 55.4, 72.7, 93.6 and 96.9 Hz and a broadband floor, per IMU
-            axis, gyro rad/s and accel m/s^2); 0 (the default) is none, 1 is V1_01's (its band
+            axis, gyro rad/s and accel m/s^2); 0 is none, 1 (the default) is V1_01's (its band
             power above 15 Hz within 5 % per axis). Added to the motion
             before the intrinsics below (:mod:`uavcal_jax.sim.imu_synth`), with or without
             ``imu_noise``; the ground truth is the motion without it.
-        imu_scale: ``None`` or 6 fractions, gyro x, y, z then accel x, y, z (IMU frame): each
-            axis reads ``(1 + scale)`` times its input (1e-3 = 1000 ppm). With
+        imu_scale: ``None`` (none) or 6 fractions, gyro x, y, z then accel x, y, z (IMU frame):
+            each axis reads ``(1 + scale)`` times its input (1e-3 = 1000 ppm). The defaults of
+            this and the next two are :data:`EUROC_IMU_REALISM`'s. With
             ``imu_misalignment`` and ``imu_g_sensitivity`` this is OpenVINS's "kalibr" IMU
             model (:class:`uavcal_jax.sim.imu_synth.ImuIntrinsics`: ``T_w``, ``T_a``, ``T_g``;
             OpenVINS estimates ``D = T^-1``).
@@ -185,10 +200,11 @@ class SimConfig:
         blur_samples: sub-exposures averaged for motion blur (1 = no blur); the camera's pose
             at each comes from the trajectory. Depth and target labels are at mid-exposure.
         vignetting: exponent ``p`` of the lens's ``cos(theta)^p`` falloff (0 = none; 4 = the
-            cos^4 law; EuRoC's: :data:`EUROC_CAMERA_PRESET`), :mod:`uavcal_jax.sim.vignetting`.
+            cos^4 law; the default is EuRoC's, :data:`EUROC_CAMERA_PRESET`),
+            :mod:`uavcal_jax.sim.vignetting`.
         auto_exposure: exposure and gain follow the scene's brightness frame by frame
             (:mod:`uavcal_jax.sim.auto_exposure`; ``exposure_ms`` and ``gain`` are the first
-            frame's), metered on cam0 and shared by both cameras.
+            frame's), metered on cam0 and shared by both cameras (on by default, as EuRoC's).
         ae_target_dn: the auto-exposure's target mean intensity, DN.
         ae_time_constant_s: the auto-exposure's time constant, seconds.
         line_delay_s: rolling shutter: row ``r`` is exposed ``line_delay_s`` after row
@@ -209,11 +225,11 @@ class SimConfig:
     seed: int = 0
     imu_noise: bool = True
     imu_offset: tuple[float, ...] | None = None
-    imu_vibration: float = 0.0
-    imu_scale: tuple[float, ...] | None = None
-    imu_misalignment: tuple[float, ...] | None = None
-    imu_g_sensitivity: tuple[float, ...] | None = None
-    imu_time_offset: float = 0.0
+    imu_vibration: float = EUROC_IMU_REALISM["imu_vibration"]
+    imu_scale: tuple[float, ...] | None = EUROC_IMU_REALISM["imu_scale"]
+    imu_misalignment: tuple[float, ...] | None = EUROC_IMU_REALISM["imu_misalignment"]
+    imu_g_sensitivity: tuple[float, ...] | None = EUROC_IMU_REALISM["imu_g_sensitivity"]
+    imu_time_offset: float = EUROC_IMU_REALISM["imu_time_offset"]
     frames: bool = True
     depth: bool = True
     targets: bool = True
@@ -225,11 +241,11 @@ class SimConfig:
     gain: float = 1.0
     sensor_noise: bool = True
     blur_samples: int = 5
-    vignetting: float = 0.0
-    auto_exposure: bool = False
+    vignetting: float = EUROC_CAMERA_PRESET["vignetting"]
+    auto_exposure: bool = EUROC_CAMERA_PRESET["auto_exposure"]
     ae_target_dn: float = ae.AE_TARGET_DN
     ae_time_constant_s: float = ae.AE_TIME_CONSTANT_S
-    line_delay_s: float = 0.0
+    line_delay_s: float = EUROC_CAMERA_PRESET["line_delay_s"]
     batch_size: int = 8
     png_workers: int = 2
 

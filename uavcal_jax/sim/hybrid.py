@@ -47,7 +47,13 @@ from uavcal_jax.data.read import read_sequence
 from uavcal_jax.data.sequence import GroundTruth, ImuData, Sequence
 from uavcal_jax.data.sim_config import SIM_CONFIG_FILE
 from uavcal_jax.errors import DataError
-from uavcal_jax.sim.config import IMU_ERRORS, SimConfig, camera_calibrations, stage_seeds
+from uavcal_jax.sim.config import (
+    IDEAL_SENSORS,
+    IMU_ERRORS,
+    SimConfig,
+    camera_calibrations,
+    stage_seeds,
+)
 from uavcal_jax.sim.simulate import (
     SimReport,
     calib_dict,
@@ -60,6 +66,9 @@ from uavcal_jax.sim.simulate import (
 from uavcal_jax.sim.trajectory_fit import fit_tum_trajectory
 
 __all__ = ["HybridSpan", "hybrid_span", "read_real", "simulate_hybrid", "trigger_phase"]
+
+#: SimConfig's defaults (the simulated IMU errors at their defaults are turned off here).
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SimConfig)}
 
 #: A ground-truth row belongs to the span when it lies within this of the span's first/last
 #: IMU sample: EuRoC's ground-truth clock sits up to 256 ns off the IMU samples it was
@@ -198,9 +207,11 @@ def simulate_hybrid(real: str | Path, out_dir: str | Path, config: SimConfig | N
         out_dir: the output folder; must not exist or be empty unless ``overwrite``.
         config: the simulator's settings (frames, camera, seed, ``imu_offset``; default
             :class:`SimConfig`). ``trajectory`` is ignored, ``imu_noise`` does not apply (the
-            noise is real), ``imu_rotation_deg`` and the simulated IMU's errors
-            (:data:`~uavcal_jax.sim.config.IMU_ERRORS`) are refused (the real IMU has its own)
-            and ``imu_rate_hz`` becomes the real IMU's rate.
+            noise is real), nor do the simulated IMU's errors
+            (:data:`~uavcal_jax.sim.config.IMU_ERRORS`: the real IMU has its own vibration,
+            intrinsics and clock; at their defaults they are turned off, set to anything else
+            they are refused, as is ``imu_rotation_deg``), and ``imu_rate_hz`` becomes the real
+            IMU's rate.
         start: seconds after the real IMU's first sample (default ``config.start``).
         duration: seconds (default ``config.duration``).
         progress: a progress bar on stderr.
@@ -219,7 +230,8 @@ def simulate_hybrid(real: str | Path, out_dir: str | Path, config: SimConfig | N
     config = SimConfig() if config is None else config
     seq = read_real(real)
     config = dataclasses.replace(
-        config, trajectory=None,
+        config, trajectory=None, **{name: IDEAL_SENSORS[name] for name in IMU_ERRORS
+                                    if getattr(config, name) == _DEFAULTS[name]},
         start=config.start if start is None else float(start),
         duration=config.duration if duration is None else float(duration),
         imu_rate_hz=float(seq.imu_calibration.rate_hz))
@@ -227,7 +239,8 @@ def simulate_hybrid(real: str | Path, out_dir: str | Path, config: SimConfig | N
     if config.imu_rotation_deg is not None:
         raise ValueError("imu_rotation_deg does not apply to a hybrid recording (the real "
                          "IMU is where it was mounted)")
-    simulated_errors = [name for name in IMU_ERRORS if getattr(config, name)]
+    simulated_errors = [name for name in IMU_ERRORS
+                        if getattr(config, name) not in (_DEFAULTS[name], IDEAL_SENSORS[name])]
     if simulated_errors:
         raise ValueError(f"{', '.join(simulated_errors)} do not apply to a hybrid recording (the "
                          "real IMU has its own vibration, intrinsics and clock)")

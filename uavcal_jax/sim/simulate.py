@@ -38,12 +38,13 @@ the ground truth's bias columns stay the IMU's true biases; the offset itself is
 ``sim_config.json`` (``config.imu_offset``).
 
 IMU errors. ``SimConfig.imu_vibration``, ``imu_scale``, ``imu_misalignment``,
-``imu_g_sensitivity`` and ``imu_time_offset`` (:data:`~uavcal_jax.sim.config.IMU_ERRORS`, all
-off by default; :data:`~uavcal_jax.sim.config.EUROC_IMU_REALISM` holds EuRoC-like values) make
-the IMU read rotor vibration, scale and axis errors, g-sensitivity and a clock offset
-(:func:`uavcal_jax.sim.imu_synth.synthesize_imu`); the ground truth stays the motion and the
-biases, and the vibration spectrum used is recorded in ``sim_config.json``
-(``imu_vibration_spectrum``).
+``imu_g_sensitivity`` and ``imu_time_offset`` (:data:`~uavcal_jax.sim.config.IMU_ERRORS`; by
+default :data:`~uavcal_jax.sim.config.EUROC_IMU_REALISM`'s EuRoC-like values, no clock
+offset) make the IMU read rotor vibration, scale and axis errors, g-sensitivity and a clock
+offset (:func:`uavcal_jax.sim.imu_synth.synthesize_imu`); the ground truth stays the motion,
+its bias columns the biases plus what the scale, misalignment and g-sensitivity add
+(:func:`intrinsic_error`: the IMU's systematic error at each sample), and the vibration
+spectrum used is recorded in ``sim_config.json`` (``imu_vibration_spectrum``).
 
 Frames. Both EuRoC cameras (cam0, cam1: intrinsics, radial-tangential distortion and
 ``T_BS`` of the real VI-sensor) are rendered; another resolution scales the intrinsics (same
@@ -95,7 +96,7 @@ from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import FitConfig, check_flight_limits, fit_trajectory_report
 
 __all__ = ["SimReport", "calib_dict", "check_out_dir", "finish_report", "imu_calibration",
-           "imu_error_options", "imu_intrinsics", "load_flight", "mount_imu",
+           "imu_error_options", "imu_intrinsics", "intrinsic_error", "load_flight", "mount_imu",
            "render_into_report", "simulate", "simulate_report", "with_offset",
            "write_recording_atomically"]
 
@@ -201,6 +202,28 @@ def imu_error_options(config: SimConfig) -> dict:
     return {"vibration": EUROC_V101_VIBRATION if config.imu_vibration else None,
             "vibration_scale": config.imu_vibration, "intrinsics": imu_intrinsics(config),
             "time_offset": config.imu_time_offset}
+
+
+def intrinsic_error(traj, t_ns: np.ndarray, config: SimConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(gyro (N, 3) rad/s, accel (N, 3) m/s^2)``: what ``config``'s scale, misalignment and
+    g-sensitivity add to the exact measurements of the motion ``traj`` at the IMU's stamps
+    ``t_ns`` (zeros for an ideal sensor). The vibration, zero-mean, is left out: like the white
+    noise it is no error a constant or a slowly varying bias can correct.
+
+    The simulator writes it into the ground truth's bias columns with the sensor's bias: they
+    hold the IMU's systematic error at each sample, so their mean over a span is the constant
+    that best corrects it (:func:`uavcal_jax.data.true_offset.sensor_bias`), as the bias
+    columns of a real EuRoC ground truth (an estimator's) absorb the same errors.
+    """
+    intrinsics = imu_intrinsics(config)
+    n = len(t_ns)
+    if intrinsics is None:
+        return np.zeros((n, 3)), np.zeros((n, 3))
+    rate, shift = config.imu_rate_hz, config.imu_time_offset
+    exact = imu_synth.synthesize_imu(traj, rate, None, t_ns=t_ns, time_offset=shift).imu
+    seen = imu_synth.synthesize_imu(traj, rate, None, t_ns=t_ns, time_offset=shift,
+                                    intrinsics=intrinsics).imu
+    return seen.gyro - exact.gyro, seen.accel - exact.accel
 
 
 def imu_intrinsics(config: SimConfig) -> imu_synth.ImuIntrinsics | None:
@@ -340,9 +363,12 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
         traj, rate_hz=config.imu_rate_hz, noise=noise, seed=seeds["imu"], t_ns=imu_t_ns,
         turn_on=turn_on, **errors)
     imu = synth.imu
-    # the ground truth keeps the true biases: the offset is an extra error of the written IMU
+    # the ground truth keeps the true biases, with what the scale, misalignment and
+    # g-sensitivity add to the motion: the offset is an extra error of the written IMU
+    extra_gyro, extra_accel = intrinsic_error(traj, imu.t_ns, config)
     gt: GroundTruth = imu_synth.ground_truth_from_trajectory(
-        traj, imu.t_ns, bias_gyro=synth.bias_gyro, bias_accel=synth.bias_accel)
+        traj, imu.t_ns, bias_gyro=synth.bias_gyro + extra_gyro,
+        bias_accel=synth.bias_accel + extra_accel)
     timings["trajectory_imu"] = time.perf_counter() - t_begin
 
     calibs = camera_calibrations(config)

@@ -17,9 +17,10 @@ machine over two phases.
   IMU interval, tested for a keyframe (:mod:`uavcal_jax.vio.keyframes`, or the last keyframe
   older than ``max_keyframe_interval_s``), inserted, solved and pruned
   (:mod:`uavcal_jax.vio.sliding_window`), then checked (:mod:`uavcal_jax.vio.failure`). A
-  failure or an IMU gap resets (``reset``) to no window, keeping the IMU-propagated state so
-  the trajectory continues; otherwise the window slides as VINS-Mono and, when it first
-  fills, refines the gyro bias from the keyframes' rotations.
+  failure or an IMU gap resets (``reset``) to no window, keeping an IMU-propagated state (after
+  a failure, from the newest frame no failure test suspected) so the trajectory continues;
+  otherwise the window slides as VINS-Mono and, when it first fills, refines the gyro bias
+  from the keyframes' rotations.
 
 A frame without features still enters the window with its IMU interval only. Output: one
 :class:`~uavcal_jax.vio.frame_estimate.FrameEstimate` per frame;
@@ -93,6 +94,9 @@ class StereoVio:
         self.resets = 0
         self._new_window()  # self.window and its failure counts
         self._last_good: BodyState | None = None
+        # the newest solved state no failure test suspected (every count at zero): a reset
+        # coasts from it, not from the frames that led to the failure
+        self._trusted: BodyState | None = None
         #: ``None`` or a callable ``(t_ns, state, problem, params)`` handed each full window
         #: solved on a good frame (no failure, enough landmarks), before it slides: for
         #: studies of the window itself (:mod:`uavcal_jax.vio.selfcalib`). Called in
@@ -206,6 +210,9 @@ class StereoVio:
             window.refine_gyro_bias()
         timer.lap("marginalize")
         self._last_good = est
+        counts = self._failures
+        if counts.blind == counts.cost_excess == counts.outliers == 0:
+            self._trusted = est
         check = self._start
         if check is not None and cfg.init_frames >= 3:
             # the start check: once the frames align it ends, re-opening the window at the
@@ -226,15 +233,25 @@ class StereoVio:
 
     def _reset(self, reason: Failure | ImuGap, t_ns: int, pred: BodyState | None,
                timer: StageTimer, feats: FrameFeatures) -> FrameEstimate:
-        """Window -> no window: keep the IMU-propagated state (across an IMU gap, the last good
-        one held at constant velocity; outside the stream, none) and clear the window. The
+        """Window -> no window: keep an IMU-propagated state and clear the window. After a
+        failure the state is propagated from the newest one no failure test suspected (the
+        frames since, which the tests counted, may already have pulled the window's velocity
+        and bias off: shuffled tracks for 0.1 s before the outlier test fired left the coast
+        0.5 m off 1.3 s later, 0.1 m from the trusted state), else ``pred``; across an IMU
+        gap, the last good state held at constant velocity; outside the stream, none. The
         tracker keeps its corners (they start new landmarks): it may already be a frame ahead
         in the front-end thread."""
         state = pred
+        trusted = self._trusted
+        if isinstance(reason, Failure) and trusted is not None and trusted.t_ns < t_ns:
+            iv = self.imu.slice(trusted.t_ns, t_ns)
+            if iv.gap is None:
+                state = trusted.propagate(iv.samples, self.noise, t_ns)[1]
         if state is None and self._last_good is not None and reason is not ImuGap.NO_IMU:
             state = self._last_good.hold(t_ns)
         self.resets += 1
         self._last_good = state
+        self._trusted = None
         # re-initialise from the next frames' alignment (not at the propagated state)
         self._start = StartCheck(self.imu, self.T_BC0, self.config)
         self._new_window()
