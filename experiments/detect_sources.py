@@ -4,7 +4,7 @@ positives per frame at ``uavcal run``'s threshold: they show no target).
 
 The sources and how each is scored are ``detector_default_weights.py``'s (the recipe of the
 shipped weights, which writes the same rows into their ``eval.json``):
-:func:`~detector_default_weights.score_sources`.
+:func:`uavcal_jax.pipeline.detector_sources.score_sources`.
 
 Usage::
 
@@ -22,15 +22,17 @@ from pathlib import Path
 from _docs import add_write_docs, cpu_name, write_docs  # the script's folder is on sys.path
 from detector_default_weights import (
     AERIAL,
+    SOURCES_COMMAND,
     aerial_split,
     held_out,
-    score_sources,
+    micro_frames,
 )
 
 from uavcal_jax.argtypes import print_json
 from uavcal_jax.data.results_doc import markdown_table
 from uavcal_jax.detect.default_weights import DEFAULT_DETECTOR_RUN
 from uavcal_jax.detect.run import load_run
+from uavcal_jax.pipeline.detector_sources import score_sources
 from uavcal_jax.sim.cache import cached_simulation
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,7 +77,8 @@ def main() -> None:
     name, cfg = held_out()
     folder = cached_simulation(cfg, args.cache / "held_out", name)
     aerial = aerial_split(args.aerial, classes)[1] if args.aerial.is_dir() else None
-    rows = score_sources(args.run, (name, cfg, folder), aerial, args.cache / "eval")
+    rows = score_sources(args.run, (name, cfg, folder), aerial, micro_frames(),
+                         args.cache / "eval", SOURCES_COMMAND)
     text = table(rows)
     print(f"{args.run} ({cpu_name()})\n\n{text}")
     write_docs(args, "detect_sources", text,

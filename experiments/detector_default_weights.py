@@ -28,8 +28,9 @@ into ``--cache/run``; a tenth of the rendered frames and the aerial photos' held
 validate and choose the best epoch. Training stops early when ``--budget`` minutes have gone
 (the epoch that would pass it is not started). The best checkpoint is exported as it ships
 (parameters stored as float16, :data:`PARAMS_DTYPE`; restored as float32), scored on each
-source by :func:`score_sources` (a held-out rendered flight, :data:`HELD_OUT`; the aerial
-photos' held-out split, whole and sliced; the real EuRoC frames' false positives), and
+source by :func:`uavcal_jax.pipeline.detector_sources.score_sources` (a held-out rendered
+flight, :data:`HELD_OUT`; the aerial photos' held-out split, whole and sliced; the real EuRoC
+frames' false positives), and
 written atomically with those scores as ``eval.json`` to ``--out``
 (:func:`uavcal_jax.detect.run.export_run`).
 
@@ -57,7 +58,6 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 from _docs import (  # the script's folder is first on sys.path
     add_write_docs,
@@ -69,12 +69,9 @@ from uavcal_jax.argtypes import positive, positive_int, print_json
 from uavcal_jax.config import apply_overrides
 from uavcal_jax.detect.datasets import concat_datasets, load_dataset, split_ids
 from uavcal_jax.detect.default_weights import DEFAULT_DETECTOR_RUN, SHIPPED
-from uavcal_jax.detect.evaluate import evaluate_run
 from uavcal_jax.detect.run import RunPaths, export_run
-from uavcal_jax.detect.tile import TileConfig
 from uavcal_jax.detect.train import train
-from uavcal_jax.pipeline.detectors import load_network_detector
-from uavcal_jax.pipeline.run_config import DetectStageConfig
+from uavcal_jax.pipeline.detector_sources import score_sources
 from uavcal_jax.plots import training_curves_writer
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.sim.cache import cached_simulation
@@ -219,49 +216,12 @@ def training_sets(args, folders, train_cfg):
     return concat_datasets(parts), concat_datasets(val_parts), aerial_val
 
 
-def score_sources(run: Path, flight, aerial, out: Path) -> dict:
-    """A detector run scored on each source, as ``eval.json`` holds them:
-
-    - ``rendered``: the held-out flight ``flight = (name, SimConfig, folder)``: COCO mAP;
-    - ``aerial`` and ``aerial_tiled``: the real aerial photos' held-out split (a data set, or
-      ``None`` to skip), the images letterboxed whole and sliced (``--tile``): COCO mAP;
-    - ``micro``: the real EuRoC frames of :data:`MICRO`, which show no target: detections per
-      frame at ``uavcal run``'s threshold (:func:`false_positives`).
-
-    Each mAP row carries the command that reproduces it."""
-    keys = ("map50", "map50_95", "per_class", "num_images", "num_boxes", "checkpoint_epoch")
-    name, cfg, folder = flight
-    rows = {"rendered": {**{k: v for k, v in evaluate_run(run, folder, "sim",
-                                                            out_dir=out / "rendered").items()
-                            if k in keys},
-                         "flight": {"name": name, **cfg.to_dict()},
-                         "command": f"uavcal detect eval RUN --data {folder} --format sim"}}
-    if aerial is not None:
-        for key, tile in (("aerial", None), ("aerial_tiled", TileConfig())):
-            result = evaluate_run(run, aerial, tile=tile, out_dir=out / key)
-            rows[key] = {**{k: v for k, v in result.items() if k in keys},
-                         "images": sorted(aerial.image_ids),
-                         "command": "python experiments/detect_sources.py --run RUN"}
-    frames = sorted((MICRO / "mav0" / "cam0" / "data").glob("*.png"))
-    if frames:
-        rows["micro"] = {**false_positives(run, frames),
-                         "command": f"uavcal run {MICRO} --json (the target: none)"}
-    return rows
+def micro_frames() -> list[Path]:
+    """The real EuRoC frames of :data:`MICRO` (they show no target), or none when absent."""
+    return sorted((MICRO / "mav0" / "cam0" / "data").glob("*.png"))
 
 
-def false_positives(run: Path, frames: list[Path]) -> dict:
-    """Detections at the run's threshold (``uavcal run``'s ``detect.score_threshold``) on real
-    frames that show no car and no person: per frame, the frames with any, the top score."""
-    detector = load_network_detector(run, DetectStageConfig().score_threshold)
-    counts, top = [], 0.0
-    for start in range(0, len(frames), 8):
-        images = [cv2.cvtColor(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE), cv2.COLOR_GRAY2RGB)
-                  for f in frames[start:start + 8]]
-        for det in detector(images, None):
-            counts.append(len(det.scores))
-            top = max([top, *det.scores])
-    return {"frames": len(counts), "per_frame": round(float(np.mean(counts)), 4),
-            "frames_with_any": int(np.count_nonzero(counts)), "top_score": round(top, 3)}
+SOURCES_COMMAND = "python experiments/detect_sources.py --run RUN"
 
 
 def _size_bytes(path: Path) -> int:
@@ -364,7 +324,7 @@ def main() -> None:
     # the parameters stored as float16 (half the size), and scored as they ship
     stage = export_run(run, args.cache / "export", params_dtype=PARAMS_DTYPE)
     sources = score_sources(stage, (test_name, test_cfg, test_folder), aerial_val,
-                            args.cache / "eval")
+                            micro_frames(), args.cache / "eval", SOURCES_COMMAND)
     target = export_run(stage, args.out, extra={"eval.json": sources})
     summary = {
         **{f"{source}_{key}": value for source, row in sources.items()
