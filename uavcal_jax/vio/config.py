@@ -480,7 +480,7 @@ class VioConfig:
             motion between samples add their own, and a window that trusts the sheet weighs
             the IMU far above the frames. The defaults are the real V1_01 IMU's, standing with
             its rotors on (0.0019 and 0.013, against the ADIS16448 sheet's 0.00017 and 0.002:
-            ``experiments/sim_realism.py``). On simulated 20 s EuRoC flights with EuRoC's
+            ``experiments/sim_realism.py``). On a simulated 20 s V1_02 flight with EuRoC's
             vibration and IMU errors (the simulator's defaults) they took the ATE from 0.027 to
             0.012 m, and on an ideal IMU from 0.012 to 0.009 m. 0 keeps the recording's.
     """
