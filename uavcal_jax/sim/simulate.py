@@ -219,11 +219,10 @@ def intrinsic_error(traj, t_ns: np.ndarray, config: SimConfig) -> tuple[np.ndarr
     n = len(t_ns)
     if intrinsics is None:
         return np.zeros((n, 3)), np.zeros((n, 3))
-    rate, shift = config.imu_rate_hz, config.imu_time_offset
-    exact = imu_synth.synthesize_imu(traj, rate, None, t_ns=t_ns, time_offset=shift).imu
-    seen = imu_synth.synthesize_imu(traj, rate, None, t_ns=t_ns, time_offset=shift,
-                                    intrinsics=intrinsics).imu
-    return seen.gyro - exact.gyro, seen.accel - exact.accel
+    exact = imu_synth.synthesize_imu(traj, config.imu_rate_hz, None, t_ns=t_ns,
+                                     time_offset=config.imu_time_offset).imu
+    gyro, accel = intrinsics.apply(exact.gyro, exact.accel)
+    return gyro - exact.gyro, accel - exact.accel
 
 
 def imu_intrinsics(config: SimConfig) -> imu_synth.ImuIntrinsics | None:
