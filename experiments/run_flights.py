@@ -6,9 +6,10 @@ where the camera looks and a constant IMU offset (:data:`IMU_OFFSET`), on the si
 defaults (EuRoC's rig: auto-exposure, vignetting, rotor vibration, IMU scale, misalignment
 and g-sensitivity; ``--ideal-sensors``: all off). Then ``uavcal run``'s pipeline
 (:func:`uavcal_jax.pipeline.run.run_pipeline`, default settings, ``--set`` over them) flies
-it with the shipped detector, and again with the renderer's own boxes (``labels``: perfect
-detections, so the gap between the two columns is what the detector costs; ``--no-labels``
-skips them).
+it three times: with the shipped detector; with its boxes redrawn around what the depth image
+shows (``refine.enabled``, :mod:`uavcal_jax.track.depth_box`; ``--no-refined`` skips it); and
+with the renderer's own boxes (``labels``: perfect detections, the detector's ceiling;
+``--no-labels`` skips it).
 
 Per flight: the VIO's ATE (posyaw-aligned RMSE) and resets, the fraction of frames with the
 car detected, and the filtered car's median and RMSE error against the true car (``uavcal
@@ -17,8 +18,8 @@ and 1 m (RMSE) and give the means.
 
 Usage::
 
-    python experiments/run_flights.py                        # 15 flights, about 45 min
-    python experiments/run_flights.py --flights MH_04_difficult indoor_45_4 --no-labels
+    python experiments/run_flights.py                        # 15 flights, about 50 min
+    python experiments/run_flights.py --flights MH_04_difficult indoor_45_4 --no-refined --no-labels
     python experiments/run_flights.py --detector RUN --write-docs candidate
 
 Recordings are cached in ``--cache`` (by their full configuration), runs go to ``--out``.
@@ -92,15 +93,18 @@ FLIGHTS = (
 
 
 def sim_config(flight: Flight, ideal_sensors: bool) -> SimConfig:
-    """The flight's simulation (the start moved earlier where the file is too short)."""
+    """The flight's simulation (the start moved earlier, and the flight shortened, where the
+    file is too short)."""
     path = trajectory_dir(DATA_ROOT, flight.dataset) / f"{flight.name}.txt"
     if not path.is_file():
         raise DataError("no such trajectory file", path)
     stamps = np.loadtxt(path, usecols=0, ndmin=1)
-    start = max(0.0, min(flight.start, float(stamps[-1] - stamps[0]) - DURATION_S))
+    span = float(stamps[-1] - stamps[0])
+    duration = min(DURATION_S, span)
+    start = max(0.0, min(flight.start, span - duration))
     frame = {} if flight.pitch_deg is None else {"body_frame": "flu",
                                                   "camera_pitch_deg": flight.pitch_deg}
-    config = SimConfig(trajectory=str(path), start=start, duration=DURATION_S,
+    config = SimConfig(trajectory=str(path), start=start, duration=duration,
                        seed=flight.seed, follow_targets=1, imu_offset=IMU_OFFSET, **frame)
     return dataclasses.replace(config, **IDEAL_SENSORS) if ideal_sensors else config
 
@@ -115,21 +119,27 @@ def _figures(metrics: dict) -> dict:
 
 
 def fly(flight: Flight, args, config: RunConfig, detector) -> dict:
-    """Simulate (cached) and run one flight with ``detector`` and, unless ``--no-labels``,
-    with the recording's labels."""
+    """Simulate (cached) and run one flight in each of the table's columns."""
     sim = sim_config(flight, args.ideal_sensors)
     recording = cached_simulation(sim, args.cache, flight.name, progress=not args.quiet)
     read = read_sequence(recording, strict=True)  # the simulator's output needs no repairs
-    row = {"flight": flight.name, "start_s": sim.start, "seed": flight.seed,
-           "recording": str(recording)}
-    columns = {"detector": detector}
-    if not args.no_labels:
-        columns["labels"] = LabelDetector(read[0].targets)
-    for key, boxes in columns.items():
-        result = run_pipeline(recording, args.out / flight.name / key, config, read=read,
+    row = {"flight": flight.name, "start_s": sim.start, "duration_s": sim.duration,
+           "seed": flight.seed, "recording": str(recording)}
+    for key in columns(args):
+        boxes = LabelDetector(read[0].targets) if key == "labels" else detector
+        settings = apply_overrides(config, ["refine.enabled=true"]) if key == "refined" \
+            else config
+        result = run_pipeline(recording, args.out / flight.name / key, settings, read=read,
                               detector=boxes, progress=not args.quiet)
         row[key] = _figures(result.metrics)
     return row
+
+
+def columns(args) -> tuple[str, ...]:
+    """The runs of each flight: ``detector`` (the settings as given), ``refined`` (its boxes
+    redrawn from the depth, ``refine.enabled``), ``labels`` (the renderer's boxes)."""
+    return ("detector",) + (() if args.no_refined else ("refined",)) \
+        + (() if args.no_labels else ("labels",))
 
 
 def _metres(value) -> str:
@@ -154,17 +164,21 @@ def summary(rows: list[dict], key: str) -> dict:
             **{f"mean_{k}": float(np.mean(v)) if v else None for k, v in values.items()}}
 
 
-def table(rows: list[dict], with_labels: bool) -> str:
+#: The table's heading of each column.
+COLUMN_TITLES = {"detector": "car: median / RMSE (m)",
+                 "refined": "boxes redrawn from depth: median / RMSE (m)",
+                 "labels": "renderer's boxes: median / RMSE (m)"}
+
+
+def table(rows: list[dict], keys: tuple[str, ...]) -> str:
     """The markdown table: a row per flight, then the means and the count within bounds."""
-    keys = ("detector", "labels") if with_labels else ("detector",)
-    head = ["flight", "ATE (m)", "resets", "car detected", "car: median / RMSE (m)"]
-    head += ["labels' boxes: median / RMSE (m)"] if with_labels else []
+    head = ["flight", "ATE (m)", "resets", "car detected"] + [COLUMN_TITLES[k] for k in keys]
     body = []
     for r in rows:
         d = r["detector"]
-        body.append([f"{r['flight']} from {r['start_s']:g} s", _metres(d["ate_m"]),
-                     str(d["resets"]), f"{100 * d['detected']:.0f} %"]
-                    + [_car(r[k]) for k in keys])
+        span = f"{r['start_s']:g}-{r['start_s'] + r['duration_s']:g} s"
+        body.append([f"{r['flight']} {span}", _metres(d["ate_m"]), str(d["resets"]),
+                     f"{100 * d['detected']:.0f} %"] + [_car(r[k]) for k in keys])
     s = {k: summary(rows, k) for k in keys}
     detected = s["detector"]["mean_detected"]
     body.append([f"mean of {len(rows)}", _metres(s["detector"]["mean_ate_m"]), "",
@@ -183,6 +197,8 @@ def main() -> None:
                     help=f"a subset of {[f.name for f in FLIGHTS]}")
     ap.add_argument("--detector", type=Path, default=None, metavar="RUN",
                     help="a `uavcal detect train` run folder [default: the shipped weights]")
+    ap.add_argument("--no-refined", action="store_true",
+                    help="skip the runs with the boxes redrawn from the depth")
     ap.add_argument("--no-labels", action="store_true",
                     help="skip the runs on the renderer's boxes")
     ap.add_argument("--ideal-sensors", action="store_true",
@@ -216,7 +232,7 @@ def main() -> None:
         except DataError as err:
             print(f"error: {err}", file=sys.stderr)
             sys.exit(2)
-    text = table(rows, not args.no_labels)
+    text = table(rows, columns(args))
     print(text)
     detector_name = "shipped" if args.detector is None else str(args.detector)
     write_docs(args, "run_flights", text, anchor=(
@@ -224,9 +240,7 @@ def main() -> None:
         f"{'ideal' if args.ideal_sensors else 'the realistic defaults'}; the renderer's own "
         "boxes (labels) are the detector's ceiling"))
     print_json({"flights": rows, "detector": detector_name, "ideal_sensors": args.ideal_sensors,
-                "set": args.set, "summary": {k: summary(rows, k) for k in
-                                             (("detector",) if args.no_labels
-                                              else ("detector", "labels"))},
+                "set": args.set, "summary": {k: summary(rows, k) for k in columns(args)},
                 "seconds": time.perf_counter() - t0})
 
 

@@ -21,6 +21,7 @@ from uavcal_jax.pipeline.self_calib import SelfCalibOptions
 from uavcal_jax.pipeline.transformer_offset import TransformerSettings
 from uavcal_jax.pipeline.vio_bias import VioBiasOptions
 from uavcal_jax.track.associate import AssociateConfig
+from uavcal_jax.track.depth_box import DepthBoxConfig
 from uavcal_jax.track.filter import FilterConfig
 from uavcal_jax.track.follow import FollowConfig
 from uavcal_jax.track.heading import HeadingConfig
@@ -244,6 +245,8 @@ class RunConfig:
         detect: :class:`DetectStageConfig`.
         associate: frame-to-frame association of the detections into tracks.
         locate: the box localisation from depth (or stereo disparity) (:data:`RUN_LOCATE`).
+        refine: each box redrawn around the target its depth image shows before it is
+            located (:mod:`uavcal_jax.track.depth_box`; recordings with a depth image).
         stereo: the stereo matcher, for recordings with a right camera and no depth.
         filter: the constant-velocity Kalman filter on the target (:data:`RUN_FILTER`).
         heading: the target's heading over time, which turns its box model
@@ -259,6 +262,7 @@ class RunConfig:
     detect: DetectStageConfig = DetectStageConfig()
     associate: AssociateConfig = AssociateConfig()
     locate: LocateConfig = RUN_LOCATE
+    refine: DepthBoxConfig = DepthBoxConfig()
     stereo: StereoConfig = StereoConfig()
     filter: FilterConfig = RUN_FILTER
     heading: HeadingConfig = RUN_HEADING

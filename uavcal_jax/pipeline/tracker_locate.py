@@ -1,5 +1,6 @@
-"""One left-image box -> the target's world point: from the frame's depth image, else its
-stereo pair's disparity, else not at all (with the reason). The localisation of
+"""One left-image box -> the target's world point: from the frame's depth image (the box first
+redrawn around what the depth shows in it with ``refine.enabled``), else its stereo pair's
+disparity, else not at all (with the reason). The localisation of
 :class:`~uavcal_jax.pipeline.tracker.TargetTracker`.
 
 A frame's images come as :class:`FrameSensors`, loaded only when a box is located: from a
@@ -20,6 +21,8 @@ from uavcal_jax.data.sequence import CameraCalibration, Sequence
 from uavcal_jax.geometry.camera import from_calibration
 from uavcal_jax.pipeline.run_config import RunConfig
 from uavcal_jax.track import REASONS, cut_by_border, locate_box
+from uavcal_jax.track.depth_box import refine_box
+from uavcal_jax.track.locate import box_depth
 from uavcal_jax.track.stereo import locate_box_stereo, rectify_stereo
 
 __all__ = ["LOCALISATION_MODES", "FrameSensors", "LocatedPoint", "Localizer", "build_localizer",
@@ -88,6 +91,9 @@ class Localizer:
         self.mode, self.reason = mode, reason
         self._config = config
         self._extent = config.detect.target_extent()
+        half = config.detect.target_half_size()
+        #: the followed class's horizontal half-diagonal, metres (None: no box model)
+        self._radius = None if half is None else float(np.hypot(half[0], half[1]))
         self._size = left.resolution
         self.T_BC = np.asarray(left.T_BS, np.float64)
         #: the left camera's model
@@ -124,7 +130,13 @@ class Localizer:
         if images is None:
             return dataclasses.replace(nan, reason=sensors.missing)
         if self.mode == "depth":
-            out = locate_box(np.asarray(box, np.float32), images(), self.camera, self.T_BC,
+            depth = images()
+            if self._config.refine.enabled:  # the box redrawn around what the depth sees
+                front = float(box_depth(depth, np.asarray(box, np.float32), cfg).depth)
+                box = refine_box(box, depth, front, self.camera,
+                                 np.asarray(T_WB, np.float64) @ self.T_BC, self._config.refine,
+                                 self._radius)
+            out = locate_box(np.asarray(box, np.float32), depth, self.camera, self.T_BC,
                              T_WB, self._extent, cfg)
         else:
             out = locate_box_stereo(box, *images(), self._rect, self.T_BC, T_WB, self._extent,

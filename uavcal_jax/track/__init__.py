@@ -6,6 +6,9 @@ project (NumPy, JAX, SciPy, and OpenCV for the stereo path). Modules, one job ea
 * :mod:`~uavcal_jax.track.locate`: a box + a depth image + the camera and the pose -> the
   target's world position with a 3x3 covariance, or "not located" with a reason
   (:class:`LocateConfig`). Jitted JAX.
+* :mod:`~uavcal_jax.track.depth_box`: a detector's box redrawn around the target the depth
+  image shows in it (depth band, height above the ground, the target's size, connectivity;
+  :class:`~uavcal_jax.track.depth_box.DepthBoxConfig`). NumPy and OpenCV.
 * :mod:`~uavcal_jax.track.box_model`: for a box-shaped target (a car, a person), its centre
   from that front surface at each candidate heading, with how well the box's shape fits.
 * :mod:`~uavcal_jax.track.heading`: which candidate heading to believe over time, from the
