@@ -40,6 +40,9 @@ Usage::
     python experiments/detector_default_weights.py --init uavcal_jax/detect/weights/default \
         --rate 2 --aerial-repeats 6 --epochs 8 \
         --set train.lr=0.002 train.warmup_bias_lr=0.002   # fine-tune the shipped weights
+    python experiments/detector_default_weights.py --init uavcal_jax/detect/weights/default \
+        --rate 1.5 --low-res --aerial-repeats 6 --epochs 6 \
+        --set train.lr=0.002 train.warmup_bias_lr=0.002   # the last fine-tune, 30 min
     python experiments/detector_default_weights.py --procedural 1 --steep 0 --euroc-flights 0 \
         --uzh-flights 0 --duration 2 --epochs 1 --max-steps 2 --nadir 2 --aerial-repeats 1 \
         --out /tmp/det_smoke --cache /tmp/det_smoke_cache   # smoke, about 3 min

@@ -6,10 +6,11 @@ where the camera looks and a constant IMU offset (:data:`IMU_OFFSET`), on the si
 defaults (EuRoC's rig: auto-exposure, vignetting, rotor vibration, IMU scale, misalignment
 and g-sensitivity; ``--ideal-sensors``: all off). Then ``uavcal run``'s pipeline
 (:func:`uavcal_jax.pipeline.run.run_pipeline`, default settings, ``--set`` over them) flies
-it three times: with the shipped detector; with its boxes redrawn around what the depth image
-shows (``refine.enabled``, :mod:`uavcal_jax.track.depth_box`; ``--no-refined`` skips it); and
-with the renderer's own boxes (``labels``: perfect detections, the detector's ceiling;
-``--no-labels`` skips it).
+it three times: with the shipped detector's boxes as they come (``refine.enabled=false``);
+with them redrawn around what the depth image shows (``refine.enabled=true``,
+:mod:`uavcal_jax.track.depth_box`; ``--no-refined`` skips it); and with the renderer's own
+boxes as they come (``labels``: perfect detections, the detector's ceiling; ``--no-labels``
+skips it).
 
 Per flight: the VIO's ATE (posyaw-aligned RMSE) and resets, the fraction of frames with the
 car detected, and the filtered car's median and RMSE error against the true car (``uavcal
@@ -127,8 +128,7 @@ def fly(flight: Flight, args, config: RunConfig, detector) -> dict:
            "seed": flight.seed, "recording": str(recording)}
     for key in columns(args):
         boxes = LabelDetector(read[0].targets) if key == "labels" else detector
-        settings = apply_overrides(config, ["refine.enabled=true"]) if key == "refined" \
-            else config
+        settings = apply_overrides(config, [f"refine.enabled={str(key == 'refined').lower()}"])
         result = run_pipeline(recording, args.out / flight.name / key, settings, read=read,
                               detector=boxes, progress=not args.quiet)
         row[key] = _figures(result.metrics)
@@ -136,8 +136,8 @@ def fly(flight: Flight, args, config: RunConfig, detector) -> dict:
 
 
 def columns(args) -> tuple[str, ...]:
-    """The runs of each flight: ``detector`` (the settings as given), ``refined`` (its boxes
-    redrawn from the depth, ``refine.enabled``), ``labels`` (the renderer's boxes)."""
+    """The runs of each flight: ``detector`` (its boxes as they come), ``refined`` (redrawn
+    from the depth, ``refine.enabled``), ``labels`` (the renderer's boxes, as they come)."""
     return ("detector",) + (() if args.no_refined else ("refined",)) \
         + (() if args.no_labels else ("labels",))
 

@@ -251,11 +251,15 @@ def test_bad_options_are_usage_errors(capsys, tmp_path, bad):
     assert code == 2 and "usage" in err
 
 
-#: The demo's car, filtered median error bound, m. Issue 42 asks 0.5 m (still open): the shipped
-#: weights, which now find real cars (trained on real aerial photos beside rendered flights),
-#: locate the demo's rendered car at 0.79 m, the previous rendered-only weights at 0.27 m. This
-#: bound keeps the current weights from regressing further until they are retrained for both.
-DEMO_CAR_MEDIAN_M = 0.9
+#: The demo's car, filtered median error bound, m: measured 0.47 m (issue 42 asks 0.5) with the
+#: shipped weights (fine-tuned on flights rendered with the realistic defaults) and their boxes
+#: redrawn from the depth (``refine``); 0.80 m as the boxes come. Small changes upstream move it
+#: by about 0.1 m (a few pixels of box turn the box model's heading), hence the margin.
+DEMO_CAR_MEDIAN_M = 0.6
+#: The demo's VIO ATE bound, m: measured 0.049 m. The shipped detector masks the VIO's features
+#: on its boxes scoring 0.25 or more, and these weights leave more of the moving car's features
+#: in than the previous ones (0.021 m); at 0.4 the ATE is 0.22 m.
+DEMO_ATE_M = 0.06
 
 
 def test_demo_json(capsys, tmp_path):
@@ -305,7 +309,7 @@ def test_demo_json(capsys, tmp_path):
     assert np.all(np.abs(error) < 0.4 * np.abs(offset["true"])), (error, offset["true"])
     # the run: a pose on every frame, the VIO on track, the car found and located
     assert result["vio"]["poses"] == result["vio"]["frames"] == 241
-    assert result["ate_m"]["rmse"] < 0.05
+    assert result["ate_m"]["rmse"] < DEMO_ATE_M
     assert result["detections"]["followed_class"] == "car"
     assert result["detections"]["true_track"] is not None  # the followed track is a labelled car
     filtered = result["target_error_m"]["filtered"]

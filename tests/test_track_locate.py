@@ -406,7 +406,7 @@ def test_depth_box_redraws_a_loose_box_around_the_car(k):
 def test_the_run_localizer_locates_the_redrawn_box_with_refine_on():
     """``uavcal run``'s Localizer: with ``refine.enabled`` the box it locates (and hands to the
     box model) is the one redrawn from the depth, closer to the car's true box than the loose
-    detector box it was given; off (the default), the detector's box as it came."""
+    detector box it was given (the default); off, the detector's box as it came."""
     from uavcal_jax.config import apply_overrides
     from uavcal_jax.data.sequence import CameraCalibration
     from uavcal_jax.pipeline.run_config import RunConfig

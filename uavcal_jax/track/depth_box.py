@@ -25,13 +25,14 @@ out. The region's extent, widened by half a grid step and by the ``clearance`` i
 foot, is the new box. Too small a region (under ``min_share`` of the detector's box) keeps the
 detector's box.
 
-Measured on the demo's recording (``uavcal run --sequence R --set refine.enabled=true``): the
-shipped detector's car boxes against the renderer's, median IoU 0.61 -> 0.95 (they were 13 px
-to the right and 28 % too tall); the car's filtered median error 0.80 -> 0.50 m. The
-renderer's own boxes, redrawn, keep a median IoU of 0.94 with themselves, and their car's
-error goes 0.28 -> 0.40 m (0.45 m on a 128-sample grid: the box model's heading moves with
-a few pixels of the box's shape). Off by default for that reason;
-``experiments/run_flights.py`` measures both over 15 flights.
+Measured with the shipped detector on the demo's recording (``uavcal run --sequence R``, and
+``--set refine.enabled=false`` for the boxes as they come): its car boxes against the
+renderer's, median IoU 0.61 -> 0.95 (they were 13 px to the right and 28 % too tall); the
+car's filtered median error 0.80 -> 0.50 m. Over the 15 flights of
+``experiments/run_flights.py`` (docs/results.md) the median error falls on 13. The
+renderer's own boxes, redrawn, keep a median IoU of 0.94 with themselves, yet their car's
+error goes 0.28 -> 0.40 m on the demo (the box model's heading moves with a few pixels of the
+box's shape): a detector as good as the renderer's labels would want it off.
 
 Frames as in :mod:`uavcal_jax.track.locate` (``T_WC`` camera to world, world z up); boxes in
 pixel-edge coordinates. NumPy and OpenCV's connected components around one jitted
@@ -70,7 +71,7 @@ class DepthBoxConfig:
         radius_passes: passes of the radius bound after the depth band's.
     """
 
-    enabled: bool = False
+    enabled: bool = True
     grow: float = 0.25
     samples: int = 64
     near: float = 0.3
