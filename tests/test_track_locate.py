@@ -371,6 +371,22 @@ def _iou(a, b) -> float:
     return ix * iy / union
 
 
+def _car_before_floor_and_wall(k: int, wall_x: float | None):
+    """A car at heading ``CANDIDATE_HEADINGS[k]`` on the floor, 7 m before a drone 3 m up,
+    ray-cast with the floor and, at ``wall_x`` m (``None``: none), a wall behind it: the
+    camera, ``T_WC``, the (H, W) z-depth and the car's true box."""
+    cam = rig.euroc_camera(0).scaled(0.5)
+    centre = np.array([7.0, 0.5, CAR_HALF[2]])
+    T_WC = _look_at(np.array([0.0, 0.0, 3.0]), centre)
+    car, box = _render_box_depth(cam, T_WC, centre, CAR_HALF, BM.CANDIDATE_HEADINGS[k])
+    dirs = _rays(cam) @ T_WC[:3, :3].T  # world directions of the unit-z rays
+    with np.errstate(divide="ignore", invalid="ignore"):
+        floor = np.where(dirs[..., 2] < 0, -T_WC[2, 3] / dirs[..., 2], np.inf)
+        wall = np.inf if wall_x is None else np.where(
+            dirs[..., 0] > 0, (wall_x - T_WC[0, 3]) / dirs[..., 0], np.inf)
+    return cam, T_WC, np.minimum(car, np.minimum(floor, wall)).astype(np.float32), box
+
+
 @pytest.mark.parametrize("k", [0, 3, 6, 10])
 def test_depth_box_redraws_a_loose_box_around_the_car(k):
     """A car on a floor before a wall, ray-cast from a drone 3 m up and 7 m behind; a loose
@@ -379,15 +395,7 @@ def test_depth_box_redraws_a_loose_box_around_the_car(k):
     and a box without depth is left as it is."""
     from uavcal_jax.track.depth_box import DepthBoxConfig, refine_box
 
-    cam = rig.euroc_camera(0).scaled(0.5)
-    centre = np.array([7.0, 0.5, CAR_HALF[2]])
-    T_WC = _look_at(np.array([0.0, 0.0, 3.0]), centre)
-    car, box = _render_box_depth(cam, T_WC, centre, CAR_HALF, BM.CANDIDATE_HEADINGS[k])
-    dirs = _rays(cam) @ T_WC[:3, :3].T  # world directions of the unit-z rays
-    with np.errstate(divide="ignore", invalid="ignore"):
-        floor = np.where(dirs[..., 2] < 0, -T_WC[2, 3] / dirs[..., 2], np.inf)
-        wall = np.where(dirs[..., 0] > 0, (14.0 - T_WC[0, 3]) / dirs[..., 0], np.inf)
-    depth = np.minimum(car, np.minimum(floor, wall)).astype(np.float32)
+    cam, T_WC, depth, box = _car_before_floor_and_wall(k, 14.0)
     w, h = box[2] - box[0], box[3] - box[1]
     loose = box + np.array([0.1 * w, -0.25 * h, 0.1 * w, 0.0])
     config = L.LocateConfig(quantile=0.5)
@@ -412,17 +420,10 @@ def test_the_run_localizer_locates_the_redrawn_box_with_refine_on():
     from uavcal_jax.pipeline.run_config import RunConfig
     from uavcal_jax.pipeline.tracker_locate import FrameSensors, Localizer
 
-    cam = rig.euroc_camera(0).scaled(0.5)
+    cam, T_WC, depth, box = _car_before_floor_and_wall(5, None)
     calibration = CameraCalibration(np.asarray(cam.intrinsics, float),
                                     np.asarray(cam.distortion, float), cam.resolution, 20.0,
                                     np.eye(4))
-    centre = np.array([7.0, 0.5, CAR_HALF[2]])
-    T_WC = _look_at(np.array([0.0, 0.0, 3.0]), centre)
-    car, box = _render_box_depth(cam, T_WC, centre, CAR_HALF, BM.CANDIDATE_HEADINGS[5])
-    dirs = _rays(cam) @ T_WC[:3, :3].T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        floor = np.where(dirs[..., 2] < 0, -T_WC[2, 3] / dirs[..., 2], np.inf)
-    depth = np.minimum(car, floor).astype(np.float32)
     w, h = box[2] - box[0], box[3] - box[1]
     loose = box + np.array([0.12 * w, -0.2 * h, 0.12 * w, 0.05 * h])
     sensors = FrameSensors(depth=lambda: depth)

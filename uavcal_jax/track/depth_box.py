@@ -62,7 +62,8 @@ class DepthBoxConfig:
         grow: the box is grown by this fraction of its width and height on each side.
         samples: the grid's samples a side.
         near, far: metres before and beyond the front-surface depth that are the target's
-            (``far``: a car seen end-on is 4.7 m deep).
+            in the first pass (a car seen end-on is 4.7 m deep; the radius passes reach its
+            far end where ``far`` would take in the wall behind it too).
         clearance: metres above the ground a sample must be to be the target's.
         ground_quantile: the quantile of the valid samples' heights that is the ground.
         min_share: the least size of the target's region, as a share of the samples of the
@@ -184,4 +185,3 @@ def refine_box(box, depth_image: np.ndarray, front_depth: float, cam: PinholeRad
     # the foot lost to the clearance: its height seen at the target's depth
     y2 = min(y2 + float(cam.fy) * config.clearance / front_depth, float(height))
     return np.array([x1, y1, x2, y2])
-
