@@ -52,8 +52,9 @@ def test_a_stopped_detector_releases_the_front_end_with_no_boxes():
 
 
 def test_the_vio_mask_takes_doubtful_boxes_the_tracker_does_not(monkeypatch):
-    """A box scoring between ``detect.mask_score_threshold`` and ``detect.score_threshold`` is
-    left out of the VIO's front end but is not a detection of the run."""
+    """A box scoring between ``detect.mask_score_threshold`` and the tracker's lowest score
+    (``detect.continue_score_threshold``) is left out of the VIO's front end but is not a
+    detection of the run."""
     sure, doubtful = (np.array([[10.0, 10.0, 50.0, 40.0]]), np.array([[100.0, 20.0, 140.0, 60.0]]))
 
     class Detector:
@@ -74,13 +75,14 @@ def test_the_vio_mask_takes_doubtful_boxes_the_tracker_does_not(monkeypatch):
         return "vio"
 
     monkeypatch.setattr(run_module, "run_vio", fake_vio)
-    config = RunConfig(detect=DetectStageConfig(score_threshold=0.6, mask_score_threshold=0.25))
+    config = RunConfig(detect=DetectStageConfig(score_threshold=0.6, continue_score_threshold=0.5,
+                                                mask_score_threshold=0.25))
     vio, detections, _, frames = run_module._vio_and_detect(sequence, config, np.zeros(6),
                                                              Detector(), False)
     assert vio == "vio" and frames == 3
     for k in range(3):
         np.testing.assert_array_equal(masked[k], np.concatenate([sure, doubtful]))
         np.testing.assert_array_equal(detections[k].boxes, sure)
-    # without the mask, the detector's threshold is the tracker's
-    assert dataclasses.replace(config.detect, mask_vio=False).detector_threshold() == 0.6
+    # without the mask, the detector's threshold is the tracker's lowest
+    assert dataclasses.replace(config.detect, mask_vio=False).detector_threshold() == 0.5
     assert config.detect.detector_threshold() == 0.25

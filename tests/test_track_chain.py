@@ -140,3 +140,24 @@ def test_a_chain_does_not_stitch_onto_a_target_boxed_beside_its_last_box():
     np.testing.assert_array_equal(pick[:10], 0)
     np.testing.assert_array_equal(pick[10:10 + gap + 1], -1)
     np.testing.assert_array_equal(pick[10 + gap + 1:], 0)  # lost: G, the only car, chosen
+
+
+def test_a_doubtful_box_continues_a_track_but_never_starts_one():
+    """ByteTrack's two rounds: a box scoring below ``start_score`` keeps a confident box's
+    track going (a car seen closer or cut scores lower), is dropped (-1) where it continues
+    none (clutter that looks like the class), and loses a track to a confident box."""
+    assoc = A.Associator(A.AssociateConfig())
+    car = np.array([[100.0, 100.0, 200.0, 160.0]])
+    clutter = np.array([400.0, 50.0, 450.0, 90.0])
+    start = 0.6
+    assert list(assoc.step(car, [0], scores=[0.9], start_score=start)) == [0]
+    # the car at a lower score, beside clutter scoring as low: the car's track goes on
+    ids = assoc.step(np.stack([car[0] + 5.0, clutter]), [0, 0], scores=[0.4, 0.55],
+                     start_score=start)
+    assert list(ids) == [0, -1]
+    # a doubtful box only takes a track a confident one left unmatched
+    ids = assoc.step(np.stack([car[0] + 12.0, car[0] + 8.0]), [0, 0], scores=[0.45, 0.7],
+                     start_score=start)
+    assert list(ids) == [-1, 0]
+    # without scores every box may start a track (the behaviour before the rounds)
+    assert list(A.Associator().step(np.stack([car[0], clutter]), [0, 0])) == [0, 1]

@@ -259,7 +259,7 @@ class _Flight:
                                    self.config.min_visible_pixels)
             return det, det
         found = self.detector([np.repeat(left[..., None], 3, axis=-1)], [j])[0]
-        return found.above(run.detect.score_threshold), \
+        return found.above(run.detect.tracked_threshold()), \
             found.above(run.detect.detector_threshold())
 
     def _record(self, j: int, estimate: TargetEstimate, T_pose) -> None:

@@ -210,8 +210,8 @@ def _vio_and_detect(sequence: Sequence, config: RunConfig, offset: np.ndarray,
                     detector: Detector, show: bool):
     """Steps 2 and 3 at once: the detector in a worker thread beside the VIO (whose front end
     waits for each frame's boxes under ``detect.mask_vio``). The detections returned are those
-    scoring at least ``detect.score_threshold``; the mask took the lower
-    ``detect.mask_score_threshold`` too."""
+    the tracker sees (:meth:`~uavcal_jax.pipeline.run_config.DetectStageConfig.
+    tracked_threshold`); the mask took the lower ``detect.mask_score_threshold`` too."""
     n_frames = len(sequence.camera("cam0"))
     frames = list(range(0, n_frames, config.detect.every))
     board = DetectionBoard(n_frames, config.detect.every)
@@ -227,7 +227,7 @@ def _vio_and_detect(sequence: Sequence, config: RunConfig, offset: np.ndarray,
             raise
         detections, detect_ms = job.result()
     # the mask's doubtful boxes are not targets
-    detections = [None if d is None else d.above(config.detect.score_threshold)
+    detections = [None if d is None else d.above(config.detect.tracked_threshold())
                   for d in detections]
     return vio, detections, detect_ms, len(frames)
 

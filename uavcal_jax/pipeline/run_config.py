@@ -99,10 +99,18 @@ class DetectStageConfig:
     Attributes:
         every: run the detector on every ``every``-th left frame (1: every frame); the filter
             predicts in between.
-        score_threshold: detections scoring below this are not tracked, located or counted
-            (ByteTrack's track-start score; YOLOv5's 0.25 is for drawing boxes): the shipped
-            weights score the simulator's followed car at 0.67 or more, and a mattress on
-            the real EuRoC frames at 0.49-0.54.
+        score_threshold: only a detection scoring at least this starts a track (ByteTrack's
+            track-start score; YOLOv5's 0.25 is for drawing boxes): the shipped weights
+            score a mattress on the real EuRoC frames (cam0) at 0.50-0.59.
+        continue_score_threshold: a detection scoring at least this, below
+            ``score_threshold``, may continue a track (ByteTrack's second round,
+            :mod:`uavcal_jax.track.associate`); lower ones are not tracked, located or
+            counted. The shipped weights score a car seen from close by, cut by the border
+            or seen end-on at 0.3-0.6 (a 155 px tall car on ``bench_run.py``'s flight: median
+            0.52): with 0.6 that flight's followed car had a box on 72 of 201 frames and was
+            lost for the other car, 0.74 m filtered median; with 0.3 on 141, 0.47 m. The
+            demo: 0.47/0.69 m (median/RMSE) with 0.6, 0.43/0.92 m with 0.3 (the car boxed on
+            83 % of the frames, not 46 %; the RMSE from a person standing before the car).
         mask_score_threshold: the VIO's mask (``mask_vio``) leaves out every box scoring at
             least this, lower than ``score_threshold``: a doubtful box over a moving target
             still must not give the front end its corners (at 0.6 for both, the demo's ATE
@@ -139,6 +147,7 @@ class DetectStageConfig:
 
     every: int = 1
     score_threshold: float = 0.6
+    continue_score_threshold: float = 0.3
     mask_score_threshold: float = 0.25
     follow_class: str = "car"
     extent: float | None = None
@@ -153,7 +162,7 @@ class DetectStageConfig:
             raise ValueError(f"detect.tile_overlap must be in [0, 1), got {self.tile_overlap}")
         if self.every < 1:
             raise ValueError(f"detect.every must be >= 1, got {self.every}")
-        for name in ("score_threshold", "mask_score_threshold"):
+        for name in ("score_threshold", "continue_score_threshold", "mask_score_threshold"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"detect.{name} must be in [0, 1], got "
                                  f"{getattr(self, name)}")
@@ -164,11 +173,15 @@ class DetectStageConfig:
         """The network detector's sliced inference (``None``: off)."""
         return TileConfig(overlap=self.tile_overlap) if self.tile else None
 
+    def tracked_threshold(self) -> float:
+        """The lowest score a box the tracker sees may have (one that continues a track)."""
+        return min(self.score_threshold, self.continue_score_threshold)
+
     def detector_threshold(self) -> float:
         """The detector's confidence threshold: the lowest score any use of its boxes keeps."""
         if self.mask_vio:
-            return min(self.score_threshold, self.mask_score_threshold)
-        return self.score_threshold
+            return min(self.tracked_threshold(), self.mask_score_threshold)
+        return self.tracked_threshold()
 
     def target_extent(self) -> float:
         """The fixed depth extent of :attr:`follow_class` along the ray, metres (0 when its

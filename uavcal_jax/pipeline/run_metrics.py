@@ -7,9 +7,10 @@ four directions a VIO cannot observe (:data:`RUN_ALIGNMENT`; at the first pose w
 or a vertical flight leaves it undetermined) and the *same* transform is applied
 to the estimated target positions and set-points before they are compared with the target's
 true world track (``target0/track.csv``, or the labels' positions where only those exist).
-The true target is the labelled one whose boxes overlap the followed track's most (IoU
-majority vote). Whatever needs a truth the recording lacks is ``None`` in the metrics, with
-the reason under ``omitted``.
+Each frame's true target is the labelled one under the followed box (carried over the frames
+without a box), so the error is that of the target measured; the followed target's changes
+are counted as identity switches. Whatever needs a truth the recording lacks is ``None`` in
+the metrics, with the reason under ``omitted``.
 """
 
 from __future__ import annotations
@@ -56,8 +57,10 @@ class Evaluation:
         alignment: VIO world -> ground-truth world (``None`` without ground truth).
         ate_m: the trajectory's ATE (``rmse``, ``mean``, ``median``, ``max`` metres,
             ``matched`` poses, ``alignment``), ``None`` without ground truth.
-        true_track_id: the labelled target followed (``None``: unknown).
-        truth: (T, 3) its true position per frame (NaN where unknown), or ``None``.
+        true_track_id: the labelled target followed most (``None``: unknown).
+        truth: (T, 3) per frame the true position of the labelled target followed then (NaN
+            where unknown), or ``None``.
+        target_switches: the changes of the labelled target followed (``None``: unknown).
         raw_points, filtered, setpoints: the run's positions mapped by ``alignment`` (as
             they are without one).
         raw_errors: (R,) per located box, metres; filtered_errors: (T,) per frame (NaN
@@ -69,6 +72,7 @@ class Evaluation:
     ate_m: dict | None
     true_track_id: int | None
     truth: np.ndarray | None
+    target_switches: int | None
     raw_points: np.ndarray
     filtered: np.ndarray
     setpoints: np.ndarray
@@ -96,42 +100,53 @@ def _ate(trajectory: GroundTruth, gt: GroundTruth) -> tuple[Alignment, dict]:
                               "alignment": result.alignment.method}
 
 
-def _true_target(sequence: Sequence, target: TargetResult) -> tuple[int | None, np.ndarray | None,
-                                                                   str]:
-    """``(track id, (T, 3) truth, reason)`` of the followed target in the labels."""
+def _true_target(sequence: Sequence, target: TargetResult
+                 ) -> tuple[int | None, np.ndarray | None, int, str]:
+    """``(track id, (T, 3) truth, switches, reason)`` of the followed target in the labels.
+
+    Each frame's truth is the labelled target under the followed box (IoU over 0.3), carried
+    over the frames without one from the last frame with one (from the first, before it): the
+    localisation is scored against the target it measured, as MOTP scores a tracker. The
+    track id is the one under most boxes; ``switches`` counts the changes of the labelled
+    target followed (MOT's identity switches)."""
     labels = sequence.targets
     if labels is None or len(labels) == 0:
-        return None, None, "the recording has no target labels (target0)"
+        return None, None, 0, "the recording has no target labels (target0)"
     if target.track_id is None:
-        return None, None, f"no {target.class_name} was detected"
+        return None, None, 0, f"no {target.class_name} was detected"
     t_ns = sequence.camera("cam0").t_ns
-    votes: collections.Counter = collections.Counter()
+    under = np.full(len(t_ns), -1, np.int64)
     left = labels.camera == "cam0"
     for k in np.flatnonzero(np.all(np.isfinite(target.boxes), axis=1)):
         rows = np.flatnonzero(left & (labels.t_ns == t_ns[k]))
         if rows.size:
             iou = box_iou(target.boxes[k][None], labels.box[rows])[0]
             if iou.max() > 0.3:
-                votes[int(labels.track_id[rows[np.argmax(iou)]])] += 1
-    if not votes:
-        return None, None, "no labelled target overlaps the followed track's boxes"
-    track = votes.most_common(1)[0][0]
+                under[k] = int(labels.track_id[rows[np.argmax(iou)]])
+    known = np.flatnonzero(under >= 0)
+    if not known.size:
+        return None, None, 0, "no labelled target overlaps the followed track's boxes"
+    track = collections.Counter(under[known].tolist()).most_common(1)[0][0]
+    # each frame's target: the last one under a box so far (the first one before any)
+    followed = under[known][np.clip(np.searchsorted(known, np.arange(len(t_ns)), "right") - 1,
+                                    0, None)]
+    switches = int(np.sum(np.diff(under[known]) != 0))
     truth = np.full((len(t_ns), 3), np.nan)
     tracks = labels.tracks
-    if tracks is not None and track in set(tracks.track_id.tolist()):
-        j = int(np.flatnonzero(tracks.track_id == track)[0])
+    columns = {} if tracks is None else {int(i): j for j, i in enumerate(tracks.track_id)}
+    if tracks is not None and set(followed.tolist()) <= set(columns):
         index = {int(t): i for i, t in enumerate(tracks.t_ns)}
         for k, t in enumerate(t_ns):
             i = index.get(int(t))
             if i is not None:
-                truth[k] = tracks.position[i, j]
+                truth[k] = tracks.position[i, columns[int(followed[k])]]
     else:  # labels only: the target's position where it is labelled
         index = {int(t): k for k, t in enumerate(t_ns)}
-        for r in np.flatnonzero(left & (labels.track_id == track)):
+        for r in np.flatnonzero(left):
             k = index.get(int(labels.t_ns[r]))
-            if k is not None:
+            if k is not None and labels.track_id[r] == followed[k]:
                 truth[k] = labels.position[r]
-    return track, truth, ""
+    return track, truth, switches, ""
 
 
 def evaluate(sequence: Sequence, trajectory: GroundTruth, target: TargetResult,
@@ -146,7 +161,7 @@ def evaluate(sequence: Sequence, trajectory: GroundTruth, target: TargetResult,
         omitted["ate_m"] = "fewer than 3 VIO poses"
     else:
         alignment, ate_m = _ate(trajectory, gt)
-    track, truth, reason = _true_target(sequence, target)
+    track, truth, switches, reason = _true_target(sequence, target)
     if alignment is None:
         reason = omitted.get("ate_m", reason)
         truth = None
@@ -161,7 +176,8 @@ def evaluate(sequence: Sequence, trajectory: GroundTruth, target: TargetResult,
         raw_err = np.linalg.norm(raw - truth[target.raw_frames], axis=1)
         live = np.isin(target.filtered.status, (TRACKING, PREDICTING))
         filt_err = np.where(live, np.linalg.norm(filtered - truth, axis=1), np.nan)
-    return Evaluation(alignment, ate_m, track, truth, raw, filtered, sp, raw_err, filt_err, omitted)
+    return Evaluation(alignment, ate_m, track, truth, None if truth is None else switches, raw,
+                      filtered, sp, raw_err, filt_err, omitted)
 
 
 def follow_metrics(times_s: np.ndarray, setpoints: np.ndarray, yaw: np.ndarray,

@@ -104,7 +104,8 @@ def build_metrics(*, recording, fmt, vio, offset, detections, detected_frames, c
                        "by_class": {class_names[c] if 0 <= c < len(class_names) else str(c): n
                                     for c, n in sorted(by_class.items())},
                        "followed_class": target.class_name, "followed_track": target.track_id,
-                       "true_track": evaluation.true_track_id},
+                       "true_track": evaluation.true_track_id,
+                       "target_switches": evaluation.target_switches},
         "localisation": {**target.localisation, "located": len(target.raw_frames),
                          "not_located": target.not_located},
         "omitted": evaluation.omitted,

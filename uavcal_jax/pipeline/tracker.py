@@ -7,9 +7,10 @@ One :meth:`TargetTracker.step`, causal (it sees nothing after its frame):
 
 1. association: the frame's detections, less the boxes of a part of a larger one
    (:func:`uavcal_jax.track.associate.contained_duplicates`), get track ids
-   (:class:`uavcal_jax.track.associate.Associator`: Hungarian matching on IoU), two boxes of
-   the class followed taken for one target only where they are located where it could have
-   driven between them (``associate.same_radius + associate.target_speed * gap``);
+   (:class:`uavcal_jax.track.associate.Associator`: Hungarian matching on IoU, ByteTrack's two
+   rounds: a box scoring below ``detect.score_threshold`` only continues a track), two boxes
+   of the class followed taken for one target only where they are located where it could
+   have driven between them (``associate.same_radius + associate.target_speed * gap``);
 2. the choice of the followed target (:class:`uavcal_jax.track.chain.FollowedChain`: the
    track of ``detect.follow_class`` seen inside the image longest so far, kept while seen,
    continued through identity breaks by an overlapping track, chosen anew once lost);
@@ -191,9 +192,13 @@ class TargetTracker:
         self.times[k] = t_s
         # a part of a target boxed beside the whole is not a target of its own; another
         # target seen past it, inside its box, is
+        start = self.config.detect.score_threshold
+        confident = np.asarray(det.scores, np.float64) >= start
+        # nor is a confident box a part of a doubtful one around it
         kept = np.flatnonzero(contained_duplicates(
             det.boxes, classes, self.config.associate.merge_contained,
-            lambda i, j: classes[j] != self.class_id or self._same(k, i, k, j)))
+            lambda i, j: (confident[i] or not confident[j])
+            and (classes[j] != self.class_id or self._same(k, i, k, j))))
         self.kept[k] = kept
 
         def same_kept(k_a: int, i_a: int, k_b: int, i_b: int) -> bool:
@@ -201,11 +206,14 @@ class TargetTracker:
                 return True  # only the class followed is located
             return self._same(k_a, int(self.kept[k_a][i_a]), k_b, int(kept[i_b]))
 
-        ids_kept = self.associator.step(det.boxes[kept], classes[kept], same_kept)
+        ids_kept = self.associator.step(det.boxes[kept], classes[kept], same_kept,
+                                        np.asarray(det.scores)[kept], start)
         ids = np.full(len(classes), -1, np.int64)
         ids[kept] = ids_kept
         inside = np.array([self.localizer.can_locate(b) for b in det.boxes[kept]], bool)
-        pick = self.chain.step(k, ids_kept, det.boxes[kept], classes[kept], inside, same_kept)
+        # a doubtful box that continues no track (id -1) is of no class the chain follows
+        chained = np.where(ids_kept >= 0, classes[kept], -1)
+        pick = self.chain.step(k, ids_kept, det.boxes[kept], chained, inside, same_kept)
         self._forget(k)
         return ids, (-1 if pick < 0 else int(kept[pick]))
 

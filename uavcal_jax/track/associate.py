@@ -8,6 +8,14 @@ assignment on IoU (``scipy.optimize.linear_sum_assignment``), pairs below ``min_
 matched. Unmatched detections start new tracks; a track unmatched for more than
 ``max_missed`` frames ends. Boxes are ``(x1, y1, x2, y2)`` pixels.
 
+With scores and a ``start_score``, the matching runs twice, as ByteTrack's does (Zhang et al.,
+*ByteTrack: Multi-Object Tracking by Associating Every Detection Box*, ECCV 2022): first the
+detections scoring at least ``start_score`` against every track, then the lower-scoring ones
+against the tracks still unmatched. Only a confident detection starts a track; a doubtful one
+continues a track or is dropped. A detector's score falls on a target seen from close by, cut
+or blurred, as it does on clutter that looks like the class; the track a confident box started
+says which of the two a doubtful box overlapping it is.
+
 Image overlap alone cannot tell two targets apart where one passes in front of the other. A
 caller that locates boxes in 3D passes a ``same`` check (``uavcal run``: both located within
 ``same_radius + target_speed * gap``): a match it refuses is not made (nor a stitch or a re-
@@ -162,41 +170,55 @@ class Associator:
                    if self.frame + 1 - t.last_frame <= self.config.max_missed + 1)
 
     def step(self, frame_boxes: np.ndarray, frame_classes: np.ndarray,
-             same: Callable[[int, int, int, int], bool] | None = None) -> np.ndarray:
+             same: Callable[[int, int, int, int], bool] | None = None,
+             scores: np.ndarray | None = None, start_score: float = 0.0) -> np.ndarray:
         """(N,) track ids (0, 1, 2, ... in order of first appearance) of the next frame's
-        boxes (N, 4) of classes (N,). ``same(k_last, i_last, k, i)``: may box ``i`` of frame
-        ``k`` be the target of a track whose last box was ``i_last`` of frame ``k_last``?
-        Asked of the pairs that overlap enough to match; a pair it refuses is not matched
-        (``None``: yes)."""
+        boxes (N, 4) of classes (N,); -1 for a box scoring below ``start_score`` that
+        continues no track (the module docstring; ``scores`` (N,) ``None``: every box may
+        start one). ``same(k_last, i_last, k, i)``: may box ``i`` of frame ``k`` be the target
+        of a track whose last box was ``i_last`` of frame ``k_last``? Asked of the pairs that
+        overlap enough to match; a pair it refuses is not matched (``None``: yes)."""
         config = self.config
         k = self.frame = self.frame + 1
         frame_boxes = np.asarray(frame_boxes, np.float64).reshape(-1, 4)
         frame_classes = np.asarray(frame_classes, np.int64).reshape(-1)
+        confident = (np.ones(len(frame_boxes), bool) if scores is None
+                     else np.asarray(scores, np.float64).reshape(-1) >= start_score)
         self.tracks = [t for t in self.tracks if k - t.last_frame <= config.max_missed + 1]
         ids = np.full(len(frame_boxes), -1, np.int64)
-        if self.tracks and len(frame_boxes):
-            tracks = self.tracks
-            predicted = np.stack([t.box + (k - t.last_frame) * t.velocity for t in tracks])
-            iou = box_iou(predicted, frame_boxes)
-            same_class = (np.array([t.class_id for t in tracks])[:, None]
-                          == frame_classes[None, :])
-            iou = np.where(same_class, iou, 0.0)
-            if same is not None:
-                for r, c in zip(*np.nonzero(iou >= max(config.min_iou, 1e-12)), strict=True):
-                    if not same(tracks[r].last_frame, tracks[r].last_index, k, int(c)):
-                        iou[r, c] = 0.0
-            rows, cols = linear_sum_assignment(-iou)
-            for r, c in zip(rows, cols, strict=True):
-                if iou[r, c] < max(config.min_iou, 1e-12):
-                    continue
-                track = tracks[r]
-                gap = k - track.last_frame
-                track.velocity = (frame_boxes[c] - track.box) / gap
-                track.box, track.last_frame, track.last_index = frame_boxes[c], k, int(c)
-                ids[c] = track.id
-        for c in np.flatnonzero(ids < 0):
+        matched = self._match(k, frame_boxes, frame_classes, confident, self.tracks, same, ids)
+        self._match(k, frame_boxes, frame_classes, ~confident,
+                    [t for t in self.tracks if t.id not in matched], same, ids)
+        for c in np.flatnonzero((ids < 0) & confident):
             self.tracks.append(_Track(self.next_id, int(frame_classes[c]), frame_boxes[c],
                                       np.zeros(4), k, int(c)))
             ids[c] = self.next_id
             self.next_id += 1
         return ids
+
+    def _match(self, k: int, frame_boxes: np.ndarray, frame_classes: np.ndarray,
+               usable: np.ndarray, tracks: list[_Track], same, ids: np.ndarray) -> set[int]:
+        """Frame ``k``'s ``usable`` boxes matched to ``tracks`` (Hungarian on IoU): the tracks
+        updated and their ids written into ``ids``; returns the ids of the tracks matched."""
+        min_iou = max(self.config.min_iou, 1e-12)
+        if not tracks or not usable.any():
+            return set()
+        predicted = np.stack([t.box + (k - t.last_frame) * t.velocity for t in tracks])
+        iou = box_iou(predicted, frame_boxes)
+        same_class = np.array([t.class_id for t in tracks])[:, None] == frame_classes[None, :]
+        iou = np.where(same_class & usable[None, :], iou, 0.0)
+        if same is not None:
+            for r, c in zip(*np.nonzero(iou >= min_iou), strict=True):
+                if not same(tracks[r].last_frame, tracks[r].last_index, k, int(c)):
+                    iou[r, c] = 0.0
+        matched = set()
+        rows, cols = linear_sum_assignment(-iou)
+        for r, c in zip(rows, cols, strict=True):
+            if iou[r, c] < min_iou:
+                continue
+            track = tracks[r]
+            track.velocity = (frame_boxes[c] - track.box) / (k - track.last_frame)
+            track.box, track.last_frame, track.last_index = frame_boxes[c], k, int(c)
+            ids[c] = track.id
+            matched.add(track.id)
+        return matched
