@@ -13,9 +13,11 @@ boxes as they come (``labels``: perfect detections, the detector's ceiling; ``--
 skips it).
 
 Per flight: the VIO's ATE (posyaw-aligned RMSE) and resets, the fraction of frames with the
-car detected, and the filtered car's median and RMSE error against the true car (``uavcal
-run``'s ``target_error_m.filtered``). The last rows count the flights within 0.5 m (median)
-and 1 m (RMSE) and give the means.
+car detected, and the filtered car's median and RMSE error against the true target under the
+followed box (``uavcal run``'s ``target_error_m.filtered``), with the times the target
+followed changed from one labelled target to another (``detections.target_switches``; the
+scene has other cars and people). The last rows count the flights within 0.5 m (median) and
+1 m (RMSE), the switches, and give the means.
 
 Usage::
 
@@ -116,7 +118,8 @@ def _figures(metrics: dict) -> dict:
     ate = metrics.get("ate_m") or {}
     return {"ate_m": ate.get("rmse"), "resets": metrics["vio"]["resets"],
             "detected": metrics["follow"]["fraction_detected"],
-            "car_median_m": car.get("median"), "car_rmse_m": car.get("rmse")}
+            "car_median_m": car.get("median"), "car_rmse_m": car.get("rmse"),
+            "switches": metrics["detections"].get("target_switches")}
 
 
 def fly(flight: Flight, args, config: RunConfig, detector) -> dict:
@@ -147,7 +150,9 @@ def _metres(value) -> str:
 
 
 def _car(fig: dict) -> str:
-    return f"{_metres(fig['car_median_m'])} / {_metres(fig['car_rmse_m'])}"
+    switches = fig.get("switches") or 0
+    return f"{_metres(fig['car_median_m'])} / {_metres(fig['car_rmse_m'])}" + (
+        f" ({switches} switch{'es' if switches > 1 else ''})" if switches else "")
 
 
 def _within(fig: dict) -> bool:
@@ -161,6 +166,7 @@ def summary(rows: list[dict], key: str) -> dict:
     values = {k: [f[k] for f in figs if f[k] is not None]
               for k in ("ate_m", "car_median_m", "car_rmse_m", "detected")}
     return {"flights": len(figs), "within": sum(_within(f) for f in figs),
+            "switches": sum(f.get("switches") or 0 for f in figs),
             **{f"mean_{k}": float(np.mean(v)) if v else None for k, v in values.items()}}
 
 
@@ -186,7 +192,8 @@ def table(rows: list[dict], keys: tuple[str, ...]) -> str:
                 + [f"{_metres(s[k]['mean_car_median_m'])} / {_metres(s[k]['mean_car_rmse_m'])}"
                    for k in keys])
     body.append([f"within {MEDIAN_BOUND_M:g} / {RMSE_BOUND_M:g} m", "", "", ""]
-                + [f"{s[k]['within']} of {s[k]['flights']}" for k in keys])
+                + [f"{s[k]['within']} of {s[k]['flights']}, {s[k]['switches']} switches"
+                   for k in keys])
     return markdown_table(head, body)
 
 
