@@ -11,9 +11,16 @@ height. So the box is grown by ``grow`` on each side and sampled on a fixed
 * its depth lies within ``[z - near, z + far]`` of the target's front-surface depth ``z``
   (:func:`~uavcal_jax.track.locate.box_depth` of the detector's box: the background further
   back and the specks in front drop out), and
-* its world point lies more than ``clearance`` above the ground, the ``ground_quantile`` of
-  the heights of the grid's valid points (the floor around the target's foot; a target that
-  fills the grown box gives its own lowest points, cut by at most ``clearance``).
+* its world point lies more than ``clearance`` above the ground under it: a plane through
+  the lower envelope of the grid's valid points (least squares on the points within
+  ``ground_band`` of the ``ground_quantile`` of their heights, then again on those at most
+  ``ground_tolerance`` above the plane, ``ground_fits`` times). A plane, not one height: the
+  pose's world may be tilted (a VIO's gravity is off by a degree or two until its
+  accelerometer bias is known: the demo's 0.22 m/s^2 offset tilted it 1.3-1.6 degrees), and
+  then the floor 6 m behind a car rises 0.2 m, stands, and the box grows over it. A plane
+  steeper than ``max_ground_slope``, or fit to too few points, gives way to the one height
+  (a target that fills the grown box gives its own lowest points, cut by at most
+  ``clearance``).
 
 Of those samples the 4-connected region holding most of the detector's box's central half is
 the target (a second car at the same depth beside it is another region). Where the target's
@@ -65,7 +72,12 @@ class DepthBoxConfig:
             in the first pass (a car seen end-on is 4.7 m deep; the radius passes reach its
             far end where ``far`` would take in the wall behind it too).
         clearance: metres above the ground a sample must be to be the target's.
-        ground_quantile: the quantile of the valid samples' heights that is the ground.
+        ground_quantile: the quantile of the valid samples' heights where the ground's fit
+            starts (and the ground's height where no plane fits).
+        ground_band, ground_tolerance: metres above that height, then above the plane, of
+            the samples each fit takes.
+        ground_fits: the plane's fits.
+        max_ground_slope: the steepest plane taken for the ground (rise over run).
         min_share: the least size of the target's region, as a share of the samples of the
             detector's box.
         radius_margin: metres added to the target's radius.
@@ -79,6 +91,10 @@ class DepthBoxConfig:
     far: float = 2.5
     clearance: float = 0.1
     ground_quantile: float = 0.05
+    ground_band: float = 0.5
+    ground_tolerance: float = 0.05
+    ground_fits: int = 4
+    max_ground_slope: float = 0.1
     min_share: float = 0.25
     radius_margin: float = 0.3
     radius_passes: int = 3
@@ -92,6 +108,10 @@ class DepthBoxConfig:
             raise ValueError("need near >= 0, far > 0 and clearance >= 0")
         if not 0.0 <= self.ground_quantile <= 1.0 or not 0.0 < self.min_share <= 1.0:
             raise ValueError("need ground_quantile in [0, 1] and min_share in (0, 1]")
+        if min(self.ground_band, self.ground_tolerance, self.max_ground_slope) < 0.0 \
+                or self.ground_fits < 1:
+            raise ValueError("need ground_band, ground_tolerance, max_ground_slope >= 0 and "
+                             "ground_fits >= 1")
 
 
 @jax.jit
@@ -111,6 +131,27 @@ def _grid(box: np.ndarray, grow: float, n: int, size: tuple[int, int]):
     step = (hi - lo) / n
     offsets = np.arange(n) + 0.5
     return lo[0] + offsets * step[0], lo[1] + offsets * step[1], step
+
+
+def _ground(points: np.ndarray, valid: np.ndarray, config: DepthBoxConfig) -> np.ndarray:
+    """(n, n) the ground's height under each sample of ``points`` (n, n, 3) world metres (the
+    module docstring; NaN where not ``valid`` (n, n))."""
+    z, xy = points[..., 2][valid], points[..., :2][valid]
+    level = float(np.quantile(z, config.ground_quantile))
+    flat = np.where(valid, level, np.nan)
+    centre = xy.mean(axis=0)
+    design = np.column_stack([np.ones(len(z)), xy - centre])
+    keep = z <= level + config.ground_band
+    coef = None
+    for _ in range(config.ground_fits):
+        if keep.sum() < 16:
+            return flat
+        coef = np.linalg.lstsq(design[keep], z[keep], rcond=None)[0]
+        if np.hypot(coef[1], coef[2]) > config.max_ground_slope:
+            return flat
+        keep = z - design @ coef <= config.ground_tolerance
+    plane = coef[0] + (points[..., :2] - centre) @ coef[1:]
+    return np.where(valid, plane, np.nan)
 
 
 def _region(mask: np.ndarray, core: np.ndarray) -> np.ndarray | None:
@@ -159,9 +200,9 @@ def refine_box(box, depth_image: np.ndarray, front_depth: float, cam: PinholeRad
     T_WC = np.asarray(T_WC, np.float64)
     points = np.where(valid[..., None], depth[..., None] * rays @ T_WC[:3, :3].T + T_WC[:3, 3],
                       np.nan)  # (n, n, 3) world
-    ground = np.quantile(points[..., 2][valid], config.ground_quantile)
-    standing = valid & (depth >= front_depth - config.near) \
-        & (points[..., 2] > ground + config.clearance)
+    with np.errstate(invalid="ignore"):  # NaN heights (no depth) do not stand
+        standing = valid & (depth >= front_depth - config.near) \
+            & (points[..., 2] > _ground(points, valid, config) + config.clearance)
     inside = ((cc + 0.5 >= box[0]) & (cc + 0.5 <= box[2]) & (rr + 0.5 >= box[1])
               & (rr + 0.5 <= box[3]))
     core = (np.abs(cols[None, :] - 0.5 * (box[0] + box[2])) <= 0.25 * (box[2] - box[0])) \
