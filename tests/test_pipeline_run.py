@@ -257,3 +257,46 @@ def test_help_names_the_options_and_outputs(capsys):
     for text in ("--sequence", "--out", "--offsets", "--no-offset", "--detector", "--set",
                  "--json", "targets.csv", "setpoints.csv", "metrics.json"):
         assert text in out
+
+
+
+class _Labels:
+    """Target labels as :func:`~uavcal_jax.pipeline.run_metrics.evaluate` reads them."""
+
+    def __init__(self, **fields):
+        self.__dict__.update(fields)
+
+    def __len__(self):
+        return len(self.track_id)
+
+
+def test_each_frame_is_scored_against_the_labelled_target_under_the_followed_box():
+    """Two labelled cars; the run follows the first, loses it, then follows the second: each
+    frame's truth is the car under the followed box (carried over frames without one), one
+    identity switch, the track id the one followed most, with or without the world tracks."""
+    from types import SimpleNamespace
+
+    from uavcal_jax.pipeline.run_metrics import _true_target
+
+    t_ns = np.arange(7) * 50_000_000
+    first, second = np.array([0.0, 0.0, 10.0, 10.0]), np.array([50.0, 0.0, 60.0, 10.0])
+    pos = {3: np.stack([np.arange(7.0), np.zeros(7), np.zeros(7)], 1),  # car 3 along x
+           5: np.stack([np.zeros(7), 10.0 + np.arange(7), np.zeros(7)], 1)}  # car 5 along y
+    rows = [(k, i) for k in range(7) for i in (3, 5)]
+    world = SimpleNamespace(track_id=np.array([3, 5]), t_ns=t_ns,
+                            position=np.stack([pos[3], pos[5]], axis=1))
+    nan = np.full(4, np.nan)
+    target = SimpleNamespace(track_id=0, class_name="car", boxes=np.stack(
+        [first + 1, first, nan, second, second - 1, second, nan]))
+    expected = np.stack([pos[3][k] if k < 3 else pos[5][k] for k in range(7)])
+    for tracks in (world, None):
+        labels = _Labels(camera=np.array(["cam0"] * len(rows)),
+                         t_ns=np.array([t_ns[k] for k, _ in rows]),
+                         track_id=np.array([i for _, i in rows]),
+                         box=np.stack([first if i == 3 else second for _, i in rows]),
+                         position=np.stack([pos[i][k] for k, i in rows]), tracks=tracks)
+        sequence = SimpleNamespace(targets=labels,
+                                   camera=lambda name: SimpleNamespace(t_ns=t_ns))
+        track, truth, switches, reason = _true_target(sequence, target)
+        assert (track, switches, reason) == (5, 1, "")
+        np.testing.assert_allclose(truth, expected)
