@@ -190,8 +190,9 @@ def refine_box(box, depth_image: np.ndarray, front_depth: float, cam: PinholeRad
     if np.any(step <= 0.0):
         return box
     cc, rr = np.meshgrid(np.floor(cols).astype(int), np.floor(rows).astype(int))
-    depth = np.asarray(depth_image, np.float64)[np.clip(rr, 0, height - 1),
-                                                np.clip(cc, 0, width - 1)]
+    # sampled first, then widened: the whole image in float64 cost more than the rest
+    depth = np.asarray(depth_image)[np.clip(rr, 0, height - 1),
+                                    np.clip(cc, 0, width - 1)].astype(np.float64)
     valid = np.isfinite(depth) & (depth > 0.0)
     if valid.sum() < 4:
         return box
