@@ -21,7 +21,7 @@ scene has other cars and people). The last rows count the flights within 0.5 m (
 
 Usage::
 
-    python experiments/run_flights.py                        # 15 flights, about 50 min
+    python experiments/run_flights.py                        # 15 flights: 20 min, +30 to render
     python experiments/run_flights.py --flights MH_04_difficult indoor_45_4 --no-refined --no-labels
     python experiments/run_flights.py --detector RUN --write-docs candidate
 

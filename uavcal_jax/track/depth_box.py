@@ -14,7 +14,8 @@ height. So the box is grown by ``grow`` on each side and sampled on a fixed
 * its world point lies more than ``clearance`` above the ground under it: a plane through
   the lower envelope of the grid's valid points (least squares on the points within
   ``ground_band`` of the ``ground_quantile`` of their heights, then again on those at most
-  ``ground_tolerance`` above the plane, ``ground_fits`` times). A plane, not one height: the
+  ``ground_tolerance`` above the plane, ``ground_fits`` times; then lowered to the
+  ``ground_quantile`` of the heights above it). A plane, not one height: the
   pose's world may be tilted (a VIO's gravity is off by a degree or two until its
   accelerometer bias is known: the demo's 0.22 m/s^2 offset tilted it 1.3-1.6 degrees), and
   then the floor 6 m behind a car rises 0.2 m, stands, and the box grows over it. A plane
@@ -150,7 +151,11 @@ def _ground(points: np.ndarray, valid: np.ndarray, config: DepthBoxConfig) -> np
         if np.hypot(coef[1], coef[2]) > config.max_ground_slope:
             return flat
         keep = z - design @ coef <= config.ground_tolerance
-    plane = coef[0] + (points[..., :2] - centre) @ coef[1:]
+    # the fit's slope, at the height of the lower envelope (the same quantile as the level's:
+    # a least-squares plane lies in the middle of the floor's noise, and the clearance
+    # counts from its bottom)
+    offset = coef[0] + np.quantile(z - design @ coef, config.ground_quantile)
+    plane = offset + (points[..., :2] - centre) @ coef[1:]
     return np.where(valid, plane, np.nan)
 
 
