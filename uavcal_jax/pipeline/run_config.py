@@ -107,10 +107,11 @@ class DetectStageConfig:
             :mod:`uavcal_jax.track.associate`); lower ones are not tracked, located or
             counted. The shipped weights score a car seen from close by, cut by the border
             or seen end-on at 0.3-0.6 (a 155 px tall car on ``bench_run.py``'s flight: median
-            0.52): with 0.6 that flight's followed car had a box on 72 of 201 frames and was
-            lost for the other car, 0.74 m filtered median; with 0.3 on 141, 0.47 m. The
-            demo: 0.47/0.69 m (median/RMSE) with 0.6, 0.43/0.92 m with 0.3 (the car boxed on
-            83 % of the frames, not 46 %; the RMSE from a person standing before the car).
+            0.52; with 0.6 it had a box on 72 of 201 frames, with 0.3 on 141). Over
+            ``experiments/run_flights.py``'s 15 flights (docs/results.md) the car was boxed
+            on 73 % of the frames with 0.3, 43 % with 0.6, and the filtered error's means
+            fell; the demo's median stays 0.39 m, its RMSE rises from 0.61 to 0.75 m (the
+            extra frames include a person standing before the car).
         mask_score_threshold: the VIO's mask (``mask_vio``) leaves out every box scoring at
             least this, lower than ``score_threshold``: a doubtful box over a moving target
             still must not give the front end its corners (at 0.6 for both, the demo's ATE

@@ -14,8 +14,8 @@ height. So the box is grown by ``grow`` on each side and sampled on a fixed
 * its world point lies more than ``clearance`` above the ground under it: a plane through
   the lower envelope of the grid's valid points (least squares on the points within
   ``ground_band`` of the ``ground_quantile`` of their heights, then again on those at most
-  ``ground_tolerance`` above the plane, ``ground_fits`` times; then lowered to the
-  ``ground_quantile`` of the heights above it). A plane, not one height: the
+  ``ground_tolerance`` above the plane, ``ground_fits`` times; then lowered by the
+  ``ground_quantile`` of the heights' residuals about it). A plane, not one height: the
   pose's world may be tilted (a VIO's gravity is off by a degree or two until its
   accelerometer bias is known: the demo's 0.22 m/s^2 offset tilted it 1.3-1.6 degrees), and
   then the floor 6 m behind a car rises 0.2 m, stands, and the box grows over it. A plane
@@ -143,7 +143,6 @@ def _ground(points: np.ndarray, valid: np.ndarray, config: DepthBoxConfig) -> np
     centre = xy.mean(axis=0)
     design = np.column_stack([np.ones(len(z)), xy - centre])
     keep = z <= level + config.ground_band
-    coef = None
     for _ in range(config.ground_fits):
         if keep.sum() < 16:
             return flat
@@ -195,7 +194,7 @@ def refine_box(box, depth_image: np.ndarray, front_depth: float, cam: PinholeRad
     if np.any(step <= 0.0):
         return box
     cc, rr = np.meshgrid(np.floor(cols).astype(int), np.floor(rows).astype(int))
-    # sampled first, then widened: the whole image in float64 cost more than the rest
+    # sampled first, then widened (not the whole image)
     depth = np.asarray(depth_image)[np.clip(rr, 0, height - 1),
                                     np.clip(cc, 0, width - 1)].astype(np.float64)
     valid = np.isfinite(depth) & (depth > 0.0)
