@@ -76,8 +76,13 @@ def build_metrics(*, recording, fmt, vio, offset, detections, detected_frames, c
     metrics left out for want of a truth, and why), ``seconds`` per step, ``notes``."""
     truth = offset["true"]
     estimate = np.asarray(offset["estimate"], np.float64)
-    by_class = collections.Counter(int(c) for d in detections if d is not None
-                                   for c in d.classes)
+    # the boxes the tracker took (a track id): not a doubtful box that continued no track
+    # (ByteTrack's second round) or a part of a larger box
+    tracked = [None if d is None or ids is None else np.asarray(ids) >= 0
+               for d, ids in zip(detections, target.track_ids, strict=True)]
+    by_class = collections.Counter(int(c) for d, keep in zip(detections, tracked, strict=True)
+                                   if keep is not None for c in np.asarray(d.classes)[keep])
+    untracked = sum(int((~keep).sum()) for keep in tracked if keep is not None)
     target_error = None
     if evaluation.truth is not None:
         target_error = {"raw": statistics(evaluation.raw_errors),
@@ -98,9 +103,10 @@ def build_metrics(*, recording, fmt, vio, offset, detections, detected_frames, c
         "vio": {"frames": len(vio.frames), "poses": len(traj), "resets": vio.resets,
                 "unreadable_frames": vio.unreadable},
         "detections": {"frames_run": detected_frames,
-                       "frames_with_detections": sum(1 for d in detections
-                                                     if d is not None and len(d.boxes)),
+                       "frames_with_detections": sum(1 for keep in tracked
+                                                     if keep is not None and keep.any()),
                        "boxes": int(sum(by_class.values())),
+                       "untracked_boxes": untracked,
                        "by_class": {class_names[c] if 0 <= c < len(class_names) else str(c): n
                                     for c, n in sorted(by_class.items())},
                        "followed_class": target.class_name, "followed_track": target.track_id,
