@@ -17,14 +17,17 @@ from uavcal_jax.sim.config import EUROC_IMU_REALISM, IMU_ERRORS, SimConfig
 from uavcal_jax.sim.flights import procedural_flight
 from uavcal_jax.sim.imu_synth import ImuIntrinsics, synthesize_imu
 from uavcal_jax.sim.imu_vibration import (
+    EUROC_V101_REST_VIBRATION,
     EUROC_V101_VIBRATION,
     VibrationBand,
     VibrationSpectrum,
     fit_vibration,
     fit_vibration_file,
     imu_psd,
+    rest_weight,
     vibration_samples,
 )
+from uavcal_jax.sim.simulate import imu_error_options
 from uavcal_jax.sim.trajectory import Trajectory
 
 RATE = 200.0
@@ -33,8 +36,8 @@ QUIET = ImuNoise(gyro_noise_density=1e-5, accel_noise_density=1e-4, gyro_random_
                  accel_random_walk=0.0)
 
 
-def _band_power(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    f, p = imu_psd(x, RATE)
+def _band_power(x: np.ndarray, lo: float, hi: float, nperseg: int = 1024) -> np.ndarray:
+    f, p = imu_psd(x, RATE, nperseg)
     m = (f >= lo) & (f < hi)
     return p[m].sum(axis=0) * (f[1] - f[0])
 
@@ -97,6 +100,101 @@ def test_euroc_v101_constant_is_the_measured_spectrum_and_sim_matches_real_band_
     sim = np.concatenate([gyro, accel], axis=1) + white
     np.testing.assert_allclose(_band_power(sim, 15.0, 100.0), _band_power(real, 15.0, 100.0),
                                rtol=0.1)
+
+
+def _stand_then_fly(stand_s: float = 6.0, fly_s: float = 14.0) -> Trajectory:
+    """A MAV standing ``stand_s`` seconds, then flying a 1 m circle at 0.5 Hz."""
+    t = np.arange(0.0, stand_s + fly_s, 0.01)
+    phase = 2 * np.pi * 0.5 * np.clip(t - stand_s, 0.0, None)
+    ramp = np.clip((t - stand_s) / 2.0, 0.0, 1.0) ** 2  # eases into the circle
+    pos = np.stack([ramp * np.sin(phase), ramp * (1 - np.cos(phase)), 0.5 * ramp], axis=1)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+    return Trajectory.from_samples(t, pos, q)
+
+
+def test_rest_weight_tells_standing_from_flight_and_ramps():
+    t = np.arange(0.0, 6.0, 1 / RATE)
+    pos = np.zeros((len(t), 3))
+    pos[:, 2] = np.where(t > 3.0, 0.3 * (t - 3.0), 0.0)  # still 3 s, then climbing 0.3 m/s
+    pos += np.random.default_rng(0).normal(scale=5e-4, size=pos.shape)  # mocap jitter
+    w = rest_weight(pos, np.zeros_like(pos), RATE)
+    assert np.all(w[t < 2.2] == 1.0) and np.all(w[t > 3.0] == 0.0)
+    ramp = w[(t > 2.2) & (t < 3.0)]
+    assert np.all(np.diff(ramp) <= 0) and 0 < ramp.mean() < 1  # spools up before lift-off
+    # turning in place is not rest
+    spin = np.tile([0.0, 0.0, 0.3], (len(t), 1))
+    assert not rest_weight(np.zeros_like(pos), spin, RATE).any()
+
+
+def test_rest_vibration_switches_spectrum_and_never_resting_changes_nothing():
+    traj = _stand_then_fly()
+    imu = synthesize_imu(traj, RATE, vibration=EUROC_V101_VIBRATION,
+                         rest_vibration=EUROC_V101_REST_VIBRATION, seed=3).imu
+    exact = synthesize_imu(traj, RATE).imu
+    err = np.concatenate([imu.gyro - exact.gyro, imu.accel - exact.accel], axis=1)
+    t = (imu.t_ns - imu.t_ns[0]) * 1e-9
+    standing, flying = err[t < 5.0], err[t > 7.0]
+    for x, spec in ((standing, EUROC_V101_REST_VIBRATION), (flying, EUROC_V101_VIBRATION)):
+        f, p = imu_psd(x, RATE, 256)
+        band = f >= 15.0
+        tallest = max(spec.bands, key=lambda b: b.accel_rms[1] ** 2 / b.sigma_hz)
+        assert abs(f[band][np.argmax(p[band, 4])] - tallest.freq_hz) < 3.0  # accel y's peak
+    # standing, the accelerometer vibrates about a third as much as in flight
+    ratio = _band_power(standing, 15.0, 100.0)[3:].sum() / _band_power(flying, 15.0, 100.0)[
+        3:].sum()
+    assert 0.05 < ratio < 0.3
+    # a flight that never rests reads exactly what it reads without the rest spectrum
+    t_ns = 7_000_000_000 + 5_000_000 * np.arange(2000, dtype=np.int64)  # the circle alone
+    state = traj.state_ns(t_ns)
+    assert not rest_weight(state.position, state.angular_velocity_body, RATE).any()
+    a = synthesize_imu(traj, RATE, EUROC_ADIS16448, seed=4, t_ns=t_ns,
+                       vibration=EUROC_V101_VIBRATION, rest_vibration=EUROC_V101_REST_VIBRATION)
+    b = synthesize_imu(traj, RATE, EUROC_ADIS16448, seed=4, t_ns=t_ns,
+                       vibration=EUROC_V101_VIBRATION)
+    np.testing.assert_array_equal(a.imu.accel, b.imu.accel)
+
+
+def test_rest_vibration_applies_to_recorded_flights_only():
+    planned = imu_error_options(SimConfig())
+    recorded = imu_error_options(SimConfig(trajectory="flight.txt"))
+    assert planned["rest_vibration"] is None  # a planned flight's still hover is in flight
+    assert recorded["rest_vibration"] is EUROC_V101_REST_VIBRATION
+    assert imu_error_options(SimConfig(), recorded=True)["rest_vibration"] is not None
+    off = SimConfig(trajectory="flight.txt", imu_rest_vibration=False)
+    assert imu_error_options(off)["rest_vibration"] is None
+    assert imu_error_options(dataclasses.replace(off, imu_vibration=0.0))["vibration"] is None
+
+
+@pytest.mark.skipif(not MICRO.is_dir(), reason="needs ../shared/data/euroc_v101_micro")
+def test_euroc_v101_rest_constant_is_measured_and_sim_matches_the_standing_imu():
+    from uavcal_jax.data.euroc import read_euroc
+    from uavcal_jax.sim.realism import imu_errors
+
+    fit = fit_vibration_file(MICRO, rest=True)
+    const = EUROC_V101_REST_VIBRATION
+    assert len(fit.bands) == len(const.bands)
+    for got, want in zip(fit.bands, const.bands, strict=True):
+        np.testing.assert_allclose([got.freq_hz, got.sigma_hz, *got.gyro_rms, *got.accel_rms],
+                                   [want.freq_hz, want.sigma_hz, *want.gyro_rms,
+                                    *want.accel_rms], rtol=1e-3)
+    # the simulator along V1_01's own ground truth: its standing seconds vibrate as the real
+    # IMU's did (band power above 15 Hz per axis), its flight as the flight did
+    seq = read_euroc(MICRO)
+    errors = imu_errors(seq.ground_truth, seq.imu, EUROC_ADIS16448, 0,
+                        **imu_error_options(SimConfig(), recorded=True))
+    t = (errors["t_ns"] - errors["t_ns"][0]) * 1e-9
+    standing = t < 4.4  # at rest (the constant's span)
+    for name in ("real", "sim"):
+        errors[name] = errors[name][standing]
+    real = _band_power(errors["real"], 15.0, 100.0, 256)
+    sim = _band_power(errors["sim"], 15.0, 100.0, 256)
+    # 4.4 s of humps a few Hz wide: each axis's band power is random to about 25 %
+    np.testing.assert_allclose(sim[3:], real[3:], rtol=0.4)
+    assert sim[3:].sum() == pytest.approx(real[3:].sum(), rel=0.3)
+    # the flight's spectrum there would be 4x the power
+    flight = _band_power(vibration_samples(EUROC_V101_VIBRATION, standing.sum(), RATE,
+                                           np.random.default_rng(0))[1], 15.0, 100.0, 256)
+    assert flight.sum() > 2.5 * real[3:].sum()
 
 
 def test_scale_and_misalignment_on_a_known_input():

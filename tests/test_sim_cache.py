@@ -41,7 +41,8 @@ def test_a_later_field_off_keeps_the_tag_and_the_realistic_defaults_change_it():
     ideal = dataclasses.replace(TINY, **IDEAL_SENSORS)
     later = ("imu_rotation_deg", "vignetting", "auto_exposure", "ae_target_dn",
              "ae_time_constant_s", "line_delay_s", "imu_vibration", "imu_scale",
-             "imu_misalignment", "imu_g_sensitivity", "imu_time_offset")
+             "imu_misalignment", "imu_g_sensitivity", "imu_time_offset",
+             "imu_rest_vibration")
     fields = {k: v for k, v in ideal.to_dict().items()
               if k not in ("png_workers", "batch_size", *later)}
     before = hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:8]
@@ -51,6 +52,13 @@ def test_a_later_field_off_keeps_the_tag_and_the_realistic_defaults_change_it():
     assert config_tag(turned) != before
     assert config_tag(dataclasses.replace(ideal, vignetting=1.1)) != before
     assert config_tag(dataclasses.replace(ideal, imu_vibration=1.0)) != before
+    # the spectrum at rest changes a recorded flight's tag, never a planned flight's (where it
+    # has no effect): the procedural caches stay valid
+    planned = dataclasses.replace(TINY, imu_rest_vibration=False)
+    assert config_tag(TINY) == config_tag(planned)
+    recorded = dataclasses.replace(TINY, trajectory="flight.txt")
+    assert config_tag(recorded) != config_tag(dataclasses.replace(recorded,
+                                                                  imu_rest_vibration=False))
 
 
 def test_a_killed_render_is_not_reused(tmp_path):

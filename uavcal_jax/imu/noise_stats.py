@@ -132,7 +132,15 @@ def bias_instability(adev) -> np.ndarray:
     return np.min(np.asarray(adev, np.float64), axis=0) / BIAS_INSTABILITY_FACTOR
 
 
-def power_spectral_density(x, fs: float, segment_s: float = 4.0
+#: Welch segment length (seconds) of :func:`power_spectral_density`: 0.25 Hz bins.
+PSD_SEGMENT_S = 4.0
+#: :func:`noise_summary` averages at least this many segments' lengths of samples (a short
+#: span's segments are shortened): one Hann-windowed segment weighs the span's middle and
+#: hides a vibration that changes over it (a MAV standing, its rotors starting and spooling).
+MIN_SEGMENTS = 4
+
+
+def power_spectral_density(x, fs: float, segment_s: float = PSD_SEGMENT_S
                            ) -> tuple[np.ndarray, np.ndarray]:
     """One-sided power spectral density (Welch, Hann windows of ``segment_s`` seconds, half
     overlapping, each segment's mean removed).
@@ -192,7 +200,8 @@ def noise_summary(x, dt: float, taus=(0.1, 1.0, 10.0), vibration_hz: float = VIB
         ``white_density`` (unit/sqrt(Hz), :func:`white_noise_density`), ``bias_instability``
         (unit), ``vibration_rms`` (unit: the square root of the power above ``vibration_hz``
         summed over the axes) and ``peak_hz`` (the largest peak of the axes' summed spectrum
-        above ``vibration_hz``).
+        above ``vibration_hz``); the spectrum's segments are :data:`PSD_SEGMENT_S` long, or
+        a :data:`MIN_SEGMENTS`-th of a shorter span.
     """
     x = _as_2d(x)
     all_taus, adev = allan_deviation(x, dt)
@@ -202,7 +211,7 @@ def noise_summary(x, dt: float, taus=(0.1, 1.0, 10.0), vibration_hz: float = VIB
         out[f"adev_{tau:g}s"] = float(at.mean())
     out["white_density"] = float(white_noise_density(all_taus, adev).mean())
     out["bias_instability"] = float(bias_instability(adev).mean())
-    f, p = power_spectral_density(x, 1.0 / dt)
+    f, p = power_spectral_density(x, 1.0 / dt, min(PSD_SEGMENT_S, len(x) * dt / MIN_SEGMENTS))
     total = p.sum(axis=1)
     out["vibration_rms"] = float(np.sqrt(band_power(f, total, vibration_hz)))
     out["peak_hz"] = float(peak_frequency(f, total, vibration_hz))

@@ -28,7 +28,8 @@ __all__ = ["cached_simulation", "config_tag", "trajectory_span"]
 #: field at that value is left out of the tag, so that older caches keep theirs. The realism
 #: options' defaults are now on, so a default configuration tags differently from an old one.
 _LATER_FIELDS = {"imu_rotation_deg": None, "ae_target_dn": ae.AE_TARGET_DN,
-                 "ae_time_constant_s": ae.AE_TIME_CONSTANT_S, **IDEAL_SENSORS}
+                 "ae_time_constant_s": ae.AE_TIME_CONSTANT_S, "imu_rest_vibration": False,
+                 **IDEAL_SENSORS}
 
 
 def config_tag(config: SimConfig) -> str:
@@ -41,6 +42,8 @@ def config_tag(config: SimConfig) -> str:
     for later, off in _LATER_FIELDS.items():  # added since caches were written: off, the
         if fields.get(later) == off:                # tag stays what it was
             fields.pop(later, None)
+    if not (config.trajectory and config.imu_vibration):  # no effect on a planned flight
+        fields.pop("imu_rest_vibration", None)
     text = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:8]
 

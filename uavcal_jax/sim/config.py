@@ -162,6 +162,14 @@ class SimConfig:
             power above 15 Hz within 5 % per axis). Added to the motion
             before the intrinsics below (:mod:`uavcal_jax.sim.imu_synth`), with or without
             ``imu_noise``; the ground truth is the motion without it.
+        imu_rest_vibration: with ``imu_vibration`` and a recorded ``trajectory``, where it
+            rests (no measurable motion for a second: standing before take-off, rotors
+            idling; a planned flight's still hovers are in flight) the spectrum is
+            V1_01's standing one instead
+            (:data:`uavcal_jax.sim.imu_vibration.EUROC_V101_REST_VIBRATION`: humps near 19 Hz,
+            a third of the flight's accelerometer vibration), ramped over the rotors' spool-up
+            (:func:`uavcal_jax.sim.imu_vibration.rest_weight`); false: the flight's spectrum
+            throughout, as before.
         imu_scale: ``None`` (none) or 6 fractions, gyro x, y, z then accel x, y, z (IMU frame):
             each axis reads ``(1 + scale)`` times its input (1e-3 = 1000 ppm). The defaults of
             this and the next two are :data:`EUROC_IMU_REALISM`'s. With
@@ -226,6 +234,7 @@ class SimConfig:
     imu_noise: bool = True
     imu_offset: tuple[float, ...] | None = None
     imu_vibration: float = EUROC_IMU_REALISM["imu_vibration"]
+    imu_rest_vibration: bool = True
     imu_scale: tuple[float, ...] | None = EUROC_IMU_REALISM["imu_scale"]
     imu_misalignment: tuple[float, ...] | None = EUROC_IMU_REALISM["imu_misalignment"]
     imu_g_sensitivity: tuple[float, ...] | None = EUROC_IMU_REALISM["imu_g_sensitivity"]

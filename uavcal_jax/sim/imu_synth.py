@@ -28,7 +28,8 @@ Sensor errors beyond the noise (each off unless given to :func:`synthesize_imu`)
   IMU's stamps run late). Stamps whose shifted time falls outside the trajectory read its first
   or last state (``|time_offset| * rate`` samples at one end);
 - rotor vibration (:mod:`uavcal_jax.sim.imu_vibration`), added to the exact angular rate and
-  specific force: the airframe's motion, so it passes through the intrinsics below;
+  specific force: the airframe's motion, so it passes through the intrinsics below; where the
+  trajectory rests (rotors idling) optionally another spectrum;
 - intrinsics (:class:`ImuIntrinsics`, OpenVINS's "kalibr" model)::
 
       gyro  = T_w omega + T_g accel_true + b_g + n_g
@@ -41,7 +42,8 @@ Randomness: numpy's ``Generator`` (PCG64), seeded with ``numpy.random.SeedSequen
 spawned into independent streams for the gyro/accel turn-on biases, bias walks and white
 noise, so the same ``seed`` always gives the same samples (and, e.g., changing the white-noise
 density does not change the bias walk). The vibration has a seventh stream of the same
-``SeedSequence``, so switching it on leaves the noise and biases as they were.
+``SeedSequence`` (and its spectrum at rest an eighth), so switching it on leaves the noise and
+biases as they were.
 """
 
 from __future__ import annotations
@@ -55,12 +57,19 @@ from uavcal_jax.data.euroc_rig import EUROC_IMU_RATE_HZ
 from uavcal_jax.data.sequence import GroundTruth, ImuData
 from uavcal_jax.geometry.frames import GRAVITY_W
 from uavcal_jax.imu.noise import ImuNoise
-from uavcal_jax.sim.imu_vibration import VibrationSpectrum, vibration_samples
+from uavcal_jax.sim.imu_vibration import (
+    VibrationSpectrum,
+    mixed_vibration_samples,
+    rest_weight,
+    vibration_samples,
+)
 from uavcal_jax.sim.trajectory import Trajectory, TrajectoryState
 
 #: Index of the vibration's stream among ``SeedSequence(seed).spawn(...)`` (after the six of
 #: :func:`imu_noise`).
 VIBRATION_STREAM = 6
+#: Index of the vibration at rest's stream (after the vibration's).
+REST_VIBRATION_STREAM = 7
 
 __all__ = [
     "ImuIntrinsics",
@@ -217,6 +226,7 @@ def synthesize_imu(traj: Trajectory, rate_hz: float = EUROC_IMU_RATE_HZ,
                    t_start: float | None = None, t_end: float | None = None,
                    *, t_ns: np.ndarray | None = None, turn_on: TurnOnBias = TurnOnBias(),
                    time_offset: float = 0.0, vibration: VibrationSpectrum | None = None,
+                   rest_vibration: VibrationSpectrum | None = None,
                    vibration_scale: float = 1.0, intrinsics: ImuIntrinsics | None = None
                    ) -> SyntheticImu:
     """IMU samples of a trajectory at ``rate_hz`` (or at given times).
@@ -233,6 +243,10 @@ def synthesize_imu(traj: Trajectory, rate_hz: float = EUROC_IMU_RATE_HZ,
             sample stamped ``t`` measures the motion at ``t - time_offset`` (module docstring).
         vibration: rotor vibration added to the motion (``None``: none), its amplitudes times
             ``vibration_scale``; drawn from ``seed``'s vibration stream.
+        rest_vibration: with ``vibration``, the spectrum where the trajectory rests (rotors
+            idling; :func:`~uavcal_jax.sim.imu_vibration.rest_weight`), drawn from its own
+            stream; ``None``: ``vibration`` throughout. A trajectory that never rests gives
+            the samples it gives without.
         intrinsics: scale, misalignment and g-sensitivity (``None``: an ideal sensor).
 
     Returns:
@@ -249,12 +263,21 @@ def synthesize_imu(traj: Trajectory, rate_hz: float = EUROC_IMU_RATE_HZ,
     if time_offset:
         shift_ns = int(round(time_offset * 1e9))
         t_lo, t_hi = (int(math.ceil(traj.t_start * 1e9)), int(math.floor(traj.t_end * 1e9)))
-        gyro, accel = _measurements(traj.state_ns(np.clip(t_ns - shift_ns, t_lo, t_hi)))
+        state = traj.state_ns(np.clip(t_ns - shift_ns, t_lo, t_hi))
     else:
-        gyro, accel = _measurements(traj.state_ns(t_ns))
+        state = traj.state_ns(t_ns)
+    gyro, accel = _measurements(state)
     if vibration is not None and vibration_scale:
-        rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(VIBRATION_STREAM + 1)[-1])
-        vib_gyro, vib_accel = vibration_samples(vibration, n, rate_hz, rng, vibration_scale)
+        streams = np.random.SeedSequence(seed).spawn(REST_VIBRATION_STREAM + 1)
+        rng, rng_rest = (np.random.default_rng(streams[i])
+                         for i in (VIBRATION_STREAM, REST_VIBRATION_STREAM))
+        if rest_vibration is None:
+            vib_gyro, vib_accel = vibration_samples(vibration, n, rate_hz, rng, vibration_scale)
+        else:
+            weight = rest_weight(state.position, state.angular_velocity_body, rate_hz)
+            vib_gyro, vib_accel = mixed_vibration_samples(vibration, rest_vibration, weight,
+                                                          rate_hz, rng, rng_rest,
+                                                          vibration_scale)
         gyro, accel = gyro + vib_gyro, accel + vib_accel
     if intrinsics is not None:
         gyro, accel = intrinsics.apply(gyro, accel)

@@ -22,8 +22,16 @@ Frequencies are those seen at the recording's rate: an ADIS16448 sampled at 200 
 shows rotor harmonics above 100 Hz folded below it, and the bands are placed where they were
 seen. At another rate, bands above its Nyquist frequency are dropped.
 
-:data:`EUROC_V101_VIBRATION` is the spectrum of EuRoC V1_01's IMU (what
+:data:`EUROC_V101_VIBRATION` is the spectrum of EuRoC V1_01's IMU in flight (what
 ``SimConfig.imu_vibration`` scales).
+
+The rotors' speed sets the spectrum: standing on its support before take-off, the MAV idles
+them, and V1_01's IMU then shows a hump near 19 Hz and a third of the flight's accelerometer
+vibration (:data:`EUROC_V101_REST_VIBRATION`, measured on those seconds) instead of the folded
+rotor harmonics near 95 Hz. :func:`rest_weight` tells the samples at rest from the trajectory
+(no measurable motion: a flying multirotor never holds still to a centimetre for a second),
+and :func:`mixed_vibration_samples` switches between the two spectra with the rotors' spool-up
+time.
 """
 
 from __future__ import annotations
@@ -32,25 +40,41 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy import signal
+from scipy import ndimage, signal
 
 from uavcal_jax.data.euroc import read_imu_folder
 from uavcal_jax.data.euroc_format import MAV0
 from uavcal_jax.imu.noise import ImuNoise
 
 __all__ = [
+    "EUROC_V101_REST_VIBRATION",
     "EUROC_V101_VIBRATION",
     "VibrationBand",
     "VibrationSpectrum",
     "fit_vibration",
     "fit_vibration_file",
     "imu_psd",
+    "mixed_vibration_samples",
+    "rest_weight",
     "vibration_samples",
 ]
 
 #: Welch segment length (samples) of :func:`imu_psd`: 1024 at 200 Hz is 0.2 Hz bins, fine
 #: enough for the humps (several Hz wide) and ~55 averages over V1_01's 145 s.
 PSD_SEGMENT = 1024
+#: Welch segment length (samples) for the few seconds at rest: 0.8 Hz bins, 6 averages over
+#: V1_01's 4.7 s (1024-sample segments leave too few averages to tell a hump from noise).
+REST_PSD_SEGMENT = 256
+#: At rest (:func:`rest_weight`): over a centred window of ``REST_WINDOW_S`` seconds the
+#: position spans under ``REST_SPAN_M`` metres on every axis and the angular rate stays under
+#: ``REST_RATE_RADPS``. EuRoC's MAVs standing before take-off span 1-3 mm and 0.02 rad/s
+#: (their ground truth's own noise); in flight, 7-35 cm and 0.2-0.6 rad/s over a second.
+REST_WINDOW_S = 1.0
+REST_SPAN_M = 0.01
+REST_RATE_RADPS = 0.05
+#: Seconds the rotors take to go from idle to flight speed (and back): the switch between
+#: the two spectra is a ramp this long (a moving average of the at-rest flag).
+SPOOL_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -130,6 +154,43 @@ EUROC_V101_VIBRATION = VibrationSpectrum(
 )
 
 
+#: EuRoC V1_01_easy's IMU standing before take-off, rotors idling (its first 4.4 s, 881
+#: samples, where :func:`rest_weight` is 1; the rotors spool up in the 0.3 s after, the MAV
+#: lifts off at 4.7 s): humps at 17.6 and 18.8 Hz (gyro x, accel y strongest), 27.3, 32.1,
+#: 47.2 and 74.5 Hz (accel x); half the flight's accelerometer vibration and no folded rotor
+#: harmonics near 95 Hz. The real vibration is not steady while it stands: strongest in the
+#: first 1.5 s (accel y 0.6-1.2 m/s^2 RMS over half seconds), 0.15-0.25 after; this is its
+#: mean. Measured by
+#:     python -c "from uavcal_jax.sim.imu_vibration import fit_vibration_file as f; \
+#:                print(f('../shared/data/euroc_v101_micro', rest=True))"
+#: (rounded to 4 digits; ``tests/test_imu_vibration.py`` re-measures it when the data is there).
+EUROC_V101_REST_VIBRATION = VibrationSpectrum(
+    bands=(
+        VibrationBand(freq_hz=17.56, sigma_hz=0.7812,
+                      gyro_rms=(0.03103, 0.003727, 0.004351),
+                      accel_rms=(0.02894, 0.3404, 0.0358)),
+        VibrationBand(freq_hz=18.8, sigma_hz=2.117,
+                      gyro_rms=(0.03611, 0.004174, 0.009118),
+                      accel_rms=(0.04479, 0.479, 0.04998)),
+        VibrationBand(freq_hz=27.31, sigma_hz=0.7812,
+                      gyro_rms=(0.01176, 0.003908, 0.004466),
+                      accel_rms=(0.04668, 0.2068, 0.03645)),
+        VibrationBand(freq_hz=32.08, sigma_hz=0.7812,
+                      gyro_rms=(0.01269, 0.004737, 0.00404),
+                      accel_rms=(0.06785, 0.2529, 0.05111)),
+        VibrationBand(freq_hz=47.24, sigma_hz=1.237,
+                      gyro_rms=(0.003109, 0.003838, 0.002651),
+                      accel_rms=(0.08615, 0.08568, 0.04298)),
+        VibrationBand(freq_hz=74.51, sigma_hz=1.616,
+                      gyro_rms=(0.001185, 0.005843, 0.002725),
+                      accel_rms=(0.1597, 0.03029, 0.06202)),
+    ),
+    gyro_floor=(7.753e-05, 0.0004531, 0.0003026),
+    accel_floor=(0.01075, 0.004993, 0.006284),
+    f_low_hz=15.0, rate_hz=200.0,
+)
+
+
 def imu_psd(samples: np.ndarray, rate_hz: float, nperseg: int = PSD_SEGMENT
             ) -> tuple[np.ndarray, np.ndarray]:
     """One-sided Welch PSD of (N, C) samples per column (linear detrend per segment).
@@ -145,8 +206,8 @@ def imu_psd(samples: np.ndarray, rate_hz: float, nperseg: int = PSD_SEGMENT
 
 
 def fit_vibration(gyro: np.ndarray, accel: np.ndarray, rate_hz: float, noise: ImuNoise, *,
-                  f_low_hz: float = 15.0, max_bands: int = 6, floor_percentile: float = 20.0
-                  ) -> VibrationSpectrum:
+                  f_low_hz: float = 15.0, max_bands: int = 6, floor_percentile: float = 20.0,
+                  nperseg: int = PSD_SEGMENT) -> VibrationSpectrum:
     """The vibration spectrum of an IMU recording in flight, above the motion's band.
 
     Per channel (gyro x, y, z, accel x, y, z) the PSD above ``f_low_hz`` is split into a floor
@@ -166,16 +227,19 @@ def fit_vibration(gyro: np.ndarray, accel: np.ndarray, rate_hz: float, noise: Im
         f_low_hz: lower edge of the band measured (Hz): above the flight's motion.
         max_bands: at most this many humps.
         floor_percentile: percentile of each channel's PSD taken as its floor.
+        nperseg: Welch segment length (samples): shorter for a short recording (coarser bins,
+            more averages).
 
     Raises:
-        ValueError: fewer than 4 Welch segments of samples, or ``f_low_hz`` not below Nyquist.
+        ValueError: fewer than 3 segments' length of samples (5 half-overlapping Welch
+            segments), or ``f_low_hz`` not below Nyquist.
     """
     x = np.concatenate([np.asarray(gyro, np.float64), np.asarray(accel, np.float64)], axis=1)
-    if x.ndim != 2 or x.shape[1] != 6 or len(x) < 4 * PSD_SEGMENT:
-        raise ValueError(f"need (N, 3) gyro and accel with N >= {4 * PSD_SEGMENT} samples")
+    if x.ndim != 2 or x.shape[1] != 6 or len(x) < 3 * nperseg:
+        raise ValueError(f"need (N, 3) gyro and accel with N >= {3 * nperseg} samples")
     if not 0 < f_low_hz < rate_hz / 2:
         raise ValueError(f"f_low_hz must lie in (0, {rate_hz / 2:g}) Hz, got {f_low_hz}")
-    f, p = imu_psd(x, rate_hz)
+    f, p = imu_psd(x, rate_hz, nperseg)
     df = float(f[1] - f[0])
     band = f >= f_low_hz
     f, p = f[band], p[band]
@@ -212,13 +276,102 @@ def fit_vibration(gyro: np.ndarray, accel: np.ndarray, rate_hz: float, noise: Im
                              f_low_hz=float(f_low_hz), rate_hz=float(rate_hz))
 
 
-def fit_vibration_file(root: str | Path, **kwargs) -> VibrationSpectrum:
+def fit_vibration_file(root: str | Path, *, rest: bool = False, **kwargs) -> VibrationSpectrum:
     """:func:`fit_vibration` of an EuRoC/ASL folder's ``imu0`` (its ``sensor.yaml`` gives the
-    rate and the noise model). The whole recording is used: it should be in flight."""
+    rate and the noise model).
+
+    Args:
+        root: the folder (holding ``mav0``, or ``mav0`` itself).
+        rest: ``False``: the whole recording, which should be in flight. ``True``: the samples
+            the simulator would take as at rest (:func:`rest_weight` 1 along a trajectory
+            fitted to the folder's ground truth: standing, rotors idling, before they spool
+            up for take-off), with ``nperseg`` :data:`REST_PSD_SEGMENT`.
+        kwargs: :func:`fit_vibration`'s options.
+    """
     root = Path(root)
     mav0 = root if root.name == MAV0 else root / MAV0
     imu, calib = read_imu_folder(mav0 / "imu0")
-    return fit_vibration(imu.gyro, imu.accel, calib.rate_hz, calib.noise, **kwargs)
+    gyro, accel = imu.gyro, imu.accel
+    if rest:
+        keep = _at_rest(mav0, imu.t_ns, calib.rate_hz)
+        gyro, accel = gyro[keep], accel[keep]
+        kwargs = {"nperseg": REST_PSD_SEGMENT} | kwargs
+    return fit_vibration(gyro, accel, calib.rate_hz, calib.noise, **kwargs)
+
+
+def _at_rest(mav0: Path, t_ns: np.ndarray, rate_hz: float) -> np.ndarray:
+    """(N,) bool: the IMU stamps ``t_ns`` inside the first stretch at rest of ``mav0``'s ground
+    truth (where :func:`rest_weight` is 1)."""
+    from uavcal_jax.data.euroc import read_ground_truth_csv  # needed here only
+    from uavcal_jax.sim.trajectory_fit import fit_tum_trajectory
+
+    gt_csv = mav0 / "state_groundtruth_estimate0" / "data.csv"
+    traj = fit_tum_trajectory(read_ground_truth_csv(gt_csv))
+    inside = (t_ns >= traj.t_start * 1e9) & (t_ns <= traj.t_end * 1e9)
+    state = traj.state_ns(t_ns[inside])
+    still = rest_weight(state.position, state.angular_velocity_body, rate_hz) >= 1.0
+    first = np.flatnonzero(still)
+    if not len(first):
+        raise ValueError(f"{mav0}: the ground truth never rests")
+    end = first[0] + (np.argmin(still[first[0]:]) if not still[first[0]:].all()
+                      else len(still) - first[0])
+    keep = np.zeros(len(t_ns), bool)
+    keep[np.flatnonzero(inside)[first[0]:end]] = True
+    return keep
+
+
+def rest_weight(position: np.ndarray, angular_rate: np.ndarray, rate_hz: float) -> np.ndarray:
+    """How far each sample is into the rotors' idle state: (N,) in [0, 1], 1 at rest.
+
+    A sample is at rest when the centred :data:`REST_WINDOW_S` window around it spans under
+    :data:`REST_SPAN_M` on every position axis and its angular rate stays under
+    :data:`REST_RATE_RADPS` (the module docstring). The flag is smoothed by a centred moving
+    average over :data:`SPOOL_S`, so the spectrum ramps as the rotors spool up.
+
+    Args:
+        position: (N, 3) metres, any fixed frame, at the samples (equally spaced).
+        angular_rate: (N, 3) rad/s, at the same samples.
+        rate_hz: the samples' rate (Hz).
+    """
+    position = np.asarray(position, np.float64)
+    window = max(1, int(round(REST_WINDOW_S * rate_hz)))
+    span = (ndimage.maximum_filter1d(position, window, axis=0, mode="nearest")
+            - ndimage.minimum_filter1d(position, window, axis=0, mode="nearest")).max(axis=1)
+    rate = ndimage.maximum_filter1d(np.linalg.norm(angular_rate, axis=1), window,
+                                    mode="nearest")
+    still = ((span < REST_SPAN_M) & (rate < REST_RATE_RADPS)).astype(np.float64)
+    return ndimage.uniform_filter1d(still, max(1, int(round(SPOOL_S * rate_hz))),
+                                    mode="nearest")
+
+
+def mixed_vibration_samples(flight: VibrationSpectrum, rest: VibrationSpectrum,
+                            weight: np.ndarray, rate_hz: float, rng_flight: np.random.Generator,
+                            rng_rest: np.random.Generator, scale: float = 1.0
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Vibration switching between two spectra: ``(1 - w) flight + w rest`` per sample.
+
+    Each spectrum's samples come from its own generator (:func:`vibration_samples`); where
+    ``weight`` is 0 everywhere the result is exactly the flight's samples, and the rest's
+    generator is not drawn from.
+
+    Args:
+        flight, rest: the spectra in flight and at rest.
+        weight: (N,) in [0, 1], :func:`rest_weight`.
+        rate_hz: the sample rate (Hz).
+        rng_flight, rng_rest: each spectrum's generator.
+        scale: both spectra's amplitudes times this.
+
+    Returns:
+        ``(gyro, accel)``, each (N, 3): rad/s and m/s^2.
+    """
+    weight = np.asarray(weight, np.float64)
+    n = len(weight)
+    gyro, accel = vibration_samples(flight, n, rate_hz, rng_flight, scale)
+    if not weight.any():
+        return gyro, accel
+    rest_gyro, rest_accel = vibration_samples(rest, n, rate_hz, rng_rest, scale)
+    w = weight[:, None]
+    return (1.0 - w) * gyro + w * rest_gyro, (1.0 - w) * accel + w * rest_accel
 
 
 def _model_psd(spectrum: VibrationSpectrum, f: np.ndarray, rate_hz: float) -> np.ndarray:

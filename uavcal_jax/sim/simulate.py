@@ -91,7 +91,7 @@ from uavcal_jax.sim.config import (
 )
 from uavcal_jax.sim.flights import procedural_flight
 from uavcal_jax.sim.frames import render_frames
-from uavcal_jax.sim.imu_vibration import EUROC_V101_VIBRATION
+from uavcal_jax.sim.imu_vibration import EUROC_V101_REST_VIBRATION, EUROC_V101_VIBRATION
 from uavcal_jax.sim.trajectory import Trajectory
 from uavcal_jax.sim.trajectory_fit import FitConfig, check_flight_limits, fit_trajectory_report
 
@@ -196,10 +196,20 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
     return traj, t_ns, info
 
 
-def imu_error_options(config: SimConfig) -> dict:
+def imu_error_options(config: SimConfig, recorded: bool | None = None) -> dict:
     """``config``'s IMU errors beyond its noise (:data:`~uavcal_jax.sim.config.IMU_ERRORS`) as
-    :func:`~uavcal_jax.sim.imu_synth.synthesize_imu`'s keyword arguments."""
-    return {"vibration": EUROC_V101_VIBRATION if config.imu_vibration else None,
+    :func:`~uavcal_jax.sim.imu_synth.synthesize_imu`'s keyword arguments.
+
+    ``recorded``: whether the trajectory is a recorded flight (default: ``config.trajectory``
+    is a file). Only there does ``imu_rest_vibration`` apply: a recorded flight's still seconds
+    are the MAV standing with its rotors idling, while a planned flight (procedural, straight)
+    hovers exactly still in flight, rotors at hover speed.
+    """
+    recorded = config.trajectory is not None if recorded is None else recorded
+    vibrates = bool(config.imu_vibration)
+    rests = vibrates and recorded and config.imu_rest_vibration
+    return {"vibration": EUROC_V101_VIBRATION if vibrates else None,
+            "rest_vibration": EUROC_V101_REST_VIBRATION if rests else None,
             "vibration_scale": config.imu_vibration, "intrinsics": imu_intrinsics(config),
             "time_offset": config.imu_time_offset}
 
