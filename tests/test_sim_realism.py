@@ -102,7 +102,7 @@ def test_photon_transfer_separates_read_and_shot_noise():
     sigma = np.sqrt(read * read + shot * scene)
     frames = scene + np.random.default_rng(8).normal(size=(80, *scene.shape)) * sigma
     ptc = realism.photon_transfer(frames, flat_quantile=1.0)
-    assert ptc["levels"] >= 10
+    assert ptc["levels"] >= 8  # the bins inside LINEAR_RANGE_DN
     assert ptc["read_noise"] == pytest.approx(read, rel=0.1)
     assert ptc["shot_slope"] == pytest.approx(shot, rel=0.1)
 

@@ -138,16 +138,24 @@ def temporal_noise(frames, flat_quantile: float = 0.5, margin: float = 5.0) -> d
             "mean_level": float(mean[keep].mean())}
 
 
+#: Grey levels (DN) where EuRoC's cameras respond linearly, as :mod:`uavcal_jax.sim.sensor`'s
+#: photon-transfer fit took them: below, the black-level clip; above, saturation shrinks the
+#: variance and bends the line (fitted over 0-255, the real cam0's intercept is 0.35 DN^2 and
+#: cam1's -7 DN^2).
+LINEAR_RANGE_DN = (30.0, 175.0)
+
+
 def photon_transfer(frames, bins: int = 16, min_pixels: int = 50, flat_quantile: float = 0.5,
-                    margin: float = 5.0) -> dict[str, float]:
+                    margin: float = 5.0, levels: tuple[float, float] = LINEAR_RANGE_DN
+                    ) -> dict[str, float]:
     """The photon transfer line of a static camera: temporal variance against mean level.
 
     A sensor with shot and read noise has ``var = read^2 + shot * level`` (grey levels^2;
     ``shot`` is the grey levels one photo-electron adds, times the gain), so the line tells
     the two apart where one noise figure at one level cannot. The flat, unclipped pixels of
-    :func:`temporal_noise` are binned by mean level (``bins`` equal bins over 0-255, those
-    with at least ``min_pixels`` pixels kept), and the line is fitted by least squares to the
-    bins' median variances.
+    :func:`temporal_noise` whose mean level lies in ``levels`` (DN) are binned by it
+    (``bins`` equal bins over 0-255, those with at least ``min_pixels`` pixels kept), and the
+    line is fitted by least squares to the bins' median variances.
 
     Returns:
         ``read_noise``: grey levels (the square root of the intercept, 0 when it is
@@ -155,6 +163,7 @@ def photon_transfer(frames, bins: int = 16, min_pixels: int = 50, flat_quantile:
         ``levels``: how many bins the fit used (at least two, else both figures are NaN).
     """
     mean, std, keep = _flat_pixels(_stack(frames), flat_quantile, margin)
+    keep &= (mean >= levels[0]) & (mean < levels[1])
     level, var = mean[keep], std[keep] ** 2
     idx = np.minimum((level / 256.0 * bins).astype(np.int64), bins - 1)
     xs, ys = [], []
