@@ -81,7 +81,13 @@ from uavcal_jax.sim.config import (
 from uavcal_jax.sim.hybrid import read_real, simulate_hybrid
 from uavcal_jax.sim.simulate import imu_calibration, imu_error_options, simulate
 from uavcal_jax.vio.frontend import FeatureTracker
-from uavcal_jax.vio.frontend_stats import corner_count, lk_pair_stats, tracking_stats
+from uavcal_jax.vio.frontend_stats import (
+    STEREO_STATUS,
+    corner_count,
+    lk_pair_stats,
+    stereo_matches,
+    tracking_stats,
+)
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (after the backend)
@@ -163,6 +169,13 @@ NOTES = (
     "below zero on both real cameras and on the rendered frames (reported as 0): the read "
     "noise lies under the 8-bit quantisation floor (1/12 DN^2) and these frames cannot "
     "measure it. The real cameras' shot slopes differ from each other by about 40 %.",
+    "Stereo inlier rate: the real pairs lose their matches on the near floor, a carpet with "
+    "little texture that shears between the two views at 50-100 px of disparity, and where "
+    "the MAV's own frame covers the right camera's lower corner (stereo_matches.png: 30-35 % "
+    "not found by LK, 15 % failing the forward-backward check, 1-3 % the epipolar check). The "
+    "rendered hall's floor is textured everywhere. Dimming (10 %), blurring (up to 1.2 px) or "
+    "adding noise (3 DN) to the rendered right image leaves its rate at 0.93: it is the "
+    "scene, not the sensor.",
     "LK forward-backward distance: on static frames both are far below a pixel (round-off of "
     "the solver); survival and residual are the figures that matter there.",
     "IMU, flight rows: the real error also holds the motion that the fit to the 20 Hz ground "
@@ -254,6 +267,27 @@ def plot_images(out: Path, real: np.ndarray, sim: np.ndarray, real_hist, sim_his
     fig.tight_layout()
     fig.savefig(out / "gradient_distribution.png", dpi=110)
     plt.close(fig)
+
+
+#: BGR colour of each :data:`~uavcal_jax.vio.frontend_stats.STEREO_STATUS` in stereo_matches.png
+_STATUS_COLOURS = ((0, 200, 0), (0, 0, 255), (0, 165, 255), (255, 0, 255))
+
+
+def plot_stereo(out: Path, pairs: dict) -> None:
+    """``stereo_matches.png``: one stereo pair per row (``pairs``: name -> (sequence, left,
+    right)), each left corner drawn by why it did or did not find its right match."""
+    rows = []
+    for name, (seq, left, right) in pairs.items():
+        pts, status = stereo_matches(FeatureTracker.from_sequence(seq), left, right)
+        row = cv2.cvtColor(np.concatenate([left, right], axis=1), cv2.COLOR_GRAY2BGR)
+        for (u, v), code in zip(pts, status, strict=True):
+            cv2.circle(row, (int(round(u)), int(round(v))), 4, _STATUS_COLOURS[code], 1)
+        counts = ", ".join(f"{label} {np.mean(status == k):.0%}"
+                           for k, label in enumerate(STEREO_STATUS))
+        cv2.putText(row, f"{name}: {counts}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                    (0, 255, 255), 1, cv2.LINE_AA)
+        rows.append(row)
+    cv2.imwrite(str(out / "stereo_matches.png"), np.concatenate(rows, axis=0))
 
 
 def plot_imu(out: Path, errors: dict, spans: dict, dt: float) -> None:
@@ -362,6 +396,9 @@ def main(argv=None) -> int:
           f"({time.perf_counter() - t_begin:.0f} s)")
 
     plot_images(args.out, real0, sim0, h_real0, h_sim0)
+    middle = len(real_t) // 2
+    plot_stereo(args.out, {"real": (real_seq, real0[middle], real1[middle]),
+                           "simulated": (sim_seq, sim0[middle], sim1[middle])})
     plot_imu(args.out, errors, spans, dt)
 
     rows, off = [], []

@@ -141,6 +141,39 @@ def test_front_end_statistics_on_a_shifted_textured_image():
     assert track["stereo_rate"] == 0.0 and track["tracked"] >= tracker.config.max_features - 5
 
 
+def test_stereo_matches_says_why_a_corner_is_unmatched():
+    """A plane 3 m before a distortion-free rig with an 11 cm baseline: the right image is the
+    left shifted by the disparity. Matched where it is; not matched where the right view is
+    blank; failing the epipolar check where the right view is shifted off its rows."""
+    import dataclasses
+
+    from uavcal_jax.vio.frontend_stats import STEREO_STATUS, stereo_matches
+
+    cam0 = dataclasses.replace(euroc_calibration(0), distortion=np.zeros(4))
+    T_01 = np.eye(4)
+    T_01[0, 3] = 0.11  # cam1 11 cm along cam0's x
+    cam1 = dataclasses.replace(cam0, T_BS=cam0.T_BS @ T_01)
+    tracker = FeatureTracker(cam0, cam1)
+    rng = np.random.default_rng(3)
+    big = cv2.GaussianBlur(rng.uniform(0, 255, (480, 800)), (0, 0), 2.0)
+    big = cv2.normalize(big, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    d = 17  # px: fx 458 * 0.11 m / 17 px is a plane 2.96 m away
+    left, right = big[:, :752], big[:, d:752 + d]
+    pts, status = stereo_matches(tracker, left, right)
+    assert len(pts) == tracker.config.max_features and set(status) <= set(range(4))
+    assert len(STEREO_STATUS) == 4
+    inside = (pts[:, 0] > 40) & (pts[:, 0] < 700) & (pts[:, 1] > 30) & (pts[:, 1] < 450)
+    assert np.mean(status[inside] == 0) > 0.95
+    blank = right.copy()
+    blank[:, 376:] = 128
+    _, status_b = stereo_matches(tracker, left, blank)
+    far_right = pts[:, 0] > 376 + 40
+    assert np.mean(status_b[far_right] == 0) < 0.1 and np.all(status_b[far_right] != 3)
+    off_rows = np.roll(right, 6, axis=0)  # 6 px off the epipolar line (tolerance 1.5 px)
+    _, status_e = stereo_matches(tracker, left, off_rows)
+    assert np.mean(status_e[inside] == 3) > 0.9
+
+
 @pytest.mark.realdata
 def test_imu_errors_of_the_real_micro_slice(euroc_micro):
     from uavcal_jax.sim.hybrid import read_real

@@ -164,6 +164,12 @@ class FeatureTracker:
         """One (H, W) or (H, W, 3) image as the tracker sees it: grey uint8, equalised."""
         return self._prepare(img)[0]
 
+    def normalised(self, uv: np.ndarray, right: bool = False) -> np.ndarray:
+        """(N, 2) pixels of the left camera (or the right) -> (N, 2) undistorted normalised
+        image coordinates."""
+        return self._undistort(uv, self.K1, self.D1) if right else self._undistort(
+            uv, self.K0, self.D0)
+
     @property
     def lk_params(self) -> dict:
         """The tracker's Lucas-Kanade window and stopping criteria (OpenCV keywords)."""

@@ -17,8 +17,13 @@ import cv2
 import numpy as np
 
 from uavcal_jax.vio.frontend import FeatureTracker
+from uavcal_jax.vio.match_checks import stereo_epipolar_distance, stereo_in_front
 
-__all__ = ["corner_count", "lk_pair_stats", "tracking_stats"]
+__all__ = ["STEREO_STATUS", "corner_count", "lk_pair_stats", "stereo_matches", "tracking_stats"]
+
+#: :func:`stereo_matches`' status codes, in order: matched; LK found no match; the match
+#: failed the forward-backward check; it failed the epipolar or cheirality check.
+STEREO_STATUS = ("matched", "not found", "forward-backward", "epipolar")
 
 
 def corner_count(tracker: FeatureTracker, image: np.ndarray) -> int:
@@ -64,6 +69,45 @@ def lk_pair_stats(tracker: FeatureTracker, image0: np.ndarray, image1: np.ndarra
             "residual": float(np.median(err.reshape(-1)[found])) if found.any() else float("nan"),
             "fb_px": float(np.median(fb[found])) if found.any() else float("nan"),
             "corners": len(pts0)}
+
+
+def stereo_matches(tracker: FeatureTracker, left: np.ndarray, right: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Why each of a left image's corners does or does not find its right match.
+
+    The tracker's ``max_features`` strongest corners of ``left`` ((H, W) uint8) are tracked
+    into ``right`` with its LK settings from scratch (no disparity seed), then checked as its
+    ``track`` step checks them (forward-backward distance, epipolar distance, in front of both
+    cameras).
+
+    Returns:
+        ``(pts (N, 2) float32 left pixels, status (N,) int8)``: an index into
+        :data:`STEREO_STATUS` per corner (the first check it fails).
+    """
+    cfg = tracker.config
+    img0, img1 = tracker.equalised(left), tracker.equalised(right)
+    pts0 = cv2.goodFeaturesToTrack(img0, cfg.max_features, cfg.quality_level,
+                                   cfg.min_distance_px, blockSize=cfg.block_size)
+    if pts0 is None:
+        return np.zeros((0, 2), np.float32), np.zeros(0, np.int8)
+    pts0 = pts0.astype(np.float32)
+    lk = tracker.lk_params
+    pts1, st, _ = cv2.calcOpticalFlowPyrLK(img0, img1, pts0, None, maxLevel=cfg.lk_max_level,
+                                           **lk)
+    back, st_b, _ = cv2.calcOpticalFlowPyrLK(img1, img0, pts1, None, maxLevel=cfg.lk_max_level,
+                                             **lk)
+    pts0, pts1 = pts0.reshape(-1, 2), pts1.reshape(-1, 2)
+    found = (st.reshape(-1) == 1) & (st_b.reshape(-1) == 1)
+    back_ok = found & (np.linalg.norm(back.reshape(-1, 2) - pts0, axis=1) <= cfg.fb_threshold_px)
+    xy, xy_r = tracker.normalised(pts0), tracker.normalised(pts1, right=True)
+    tol = cfg.stereo_epipolar_px / float(tracker.K0[0, 0])
+    geometric = (stereo_epipolar_distance(xy, xy_r, tracker.T_C0C1) <= tol) & stereo_in_front(
+        xy, xy_r, tracker.T_C0C1, tol)
+    status = np.full(len(pts0), 3, np.int8)
+    status[back_ok & geometric] = 0
+    status[~found] = 1
+    status[found & ~back_ok] = 2
+    return pts0, status
 
 
 def tracking_stats(tracker: FeatureTracker, left: Sequence[np.ndarray],
