@@ -166,9 +166,9 @@ NOTES = (
     "histogram EMD: the real column is the real cam1's distance to the real cam0, the "
     "difference between two real cameras of one rig.",
     "Read noise: the photon-transfer line's intercept over the linear range (30-175 DN) is "
-    "below zero on both real cameras and on the rendered frames (reported as 0): the read "
-    "noise lies under the 8-bit quantisation floor (1/12 DN^2) and these frames cannot "
-    "measure it. The real cameras' shot slopes differ from each other by about 40 %.",
+    "below zero on both real cameras (reported as 0): their read noise lies under the 8-bit "
+    "quantisation floor (1/12 DN^2) and these frames cannot measure it. The real cameras' "
+    "shot slopes differ from each other by about 40 %.",
     "Stereo inlier rate: the real pairs lose their matches on the near floor, a carpet with "
     "little texture that shears between the two views at 50-100 px of disparity, and where "
     "the MAV's own frame covers the right camera's lower corner (stereo_matches.png: 30-35 % "

@@ -140,6 +140,25 @@ def test_vio_bias_recovers_the_injected_gyro_offset(flight, cli_run):
 
 
 # self-calib's descent through the VIO's windows compiles for 2 minutes: heavy, not CI
+def _check_pooled_scores(method: str, summary: dict) -> None:
+    """``pooled_scores`` of a method's summary as ``score_recordings`` rows it: a finite score
+    per channel, and a z-score spread where the method predicts a sigma of one per channel."""
+    from uavcal_jax.pipeline.offset_scores import pooled_scores
+
+    sigma = summary.get("sigma")
+    if sigma is not None:
+        assert np.shape(sigma) == (len(summary["channels"]),), (method, np.shape(sigma))
+    row = {"recording": "flight", "method": method, "channels": summary["channels"],
+           "offset": summary["offset"], "true": summary["true"], "error": summary["error"],
+           "sigma": sigma}
+    pooled = pooled_scores([row, {**row, "recording": "again"}])[method]
+    assert pooled["recordings"] == 2
+    assert all(np.isfinite(v) for v in pooled["rmse"].values())
+    for sensor in ("gyro", "accel"):
+        if sigma is not None and pooled[f"{sensor}_rmse"] is not None:
+            assert np.isfinite(pooled[f"{sensor}_z_rms"])
+
+
 @pytest.mark.parametrize("method", [pytest.param(m, marks=pytest.mark.heavy)
                                     if m == "self-calib" else m for m in sorted(METHODS)])
 def test_every_method_is_the_same_without_ground_truth(flight, cli_run, self_calib_run, tmp_path,
@@ -163,6 +182,7 @@ def test_every_method_is_the_same_without_ground_truth(flight, cli_run, self_cal
     else:
         first, _ = _predict(copy, method, options)
         assert first["true"] is not None  # the truth was there
+    _check_pooled_scores(method, first)
     gt = copy / "mav0" / "state_groundtruth_estimate0"
     gt.unlink() if gt.is_symlink() else shutil.rmtree(gt)
     (copy / "sim_config.json").unlink(missing_ok=True)

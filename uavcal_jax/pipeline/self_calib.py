@@ -132,8 +132,10 @@ def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(),
     Per item: each window's offset.
 
     ``info`` holds ``frames``, ``resets``, ``windows_tried``, ``windows_used`` (those whose fit
-    stayed finite) and each one's ``sigma`` (the Hessian's Cramer-Rao standard deviation,
-    rad/s and m/s^2).
+    stayed finite), each one's ``window_sigma`` (W, 6) (the Hessian's Cramer-Rao standard
+    deviation, rad/s and m/s^2) and the estimate's ``sigma`` (6,): their median over windows,
+    as the transformer's (the windows share one flight, so their errors are not taken as
+    independent: the median's sigma is not divided by the windows' count).
 
     Raises:
         DataError: what :func:`~uavcal_jax.vio.run.run_vio` refuses, no full window in the
@@ -173,7 +175,8 @@ def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(),
     info = {"frames": len(result.frames), "resets": result.resets,
             "windows_tried": len(windows), "windows_used": len(fitted),
             "tail_fraction": options.tail_fraction,
-            "sigma": np.stack(sigmas).tolist()}
+            "window_sigma": np.stack(sigmas).tolist(),
+            "sigma": np.median(np.stack(sigmas), axis=0).tolist()}
     return OffsetEstimate(
         offset=median, channels=SIX_CHANNELS, median=median, per_item=per_window,
         item_t_s=(t_ns - t_frames[0]) * 1e-9, item="window",
