@@ -161,3 +161,10 @@ def test_a_doubtful_box_continues_a_track_but_never_starts_one():
     assert list(ids) == [-1, 0]
     # without scores every box may start a track (the behaviour before the rounds)
     assert list(A.Associator().step(np.stack([car[0], clutter]), [0, 0])) == [0, 1]
+    # what a doubtful box could continue: a live track of its class it overlaps
+    boxes = np.stack([car[0] + 10.0, clutter, car[0] + 10.0])
+    np.testing.assert_array_equal(assoc.could_continue(boxes, [0, 0, 1]), [True, False, False])
+    assert not A.Associator().could_continue(boxes, [0, 0, 0]).any()  # no track yet
+    for _ in range(A.AssociateConfig().max_missed + 2):  # the car's track ends unmatched
+        assoc.step(np.zeros((0, 4)), np.zeros(0, int))
+    assert not assoc.could_continue(boxes, [0, 0, 1]).any()

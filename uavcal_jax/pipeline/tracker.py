@@ -194,11 +194,15 @@ class TargetTracker:
         # target seen past it, inside its box, is
         start = self.config.detect.score_threshold
         confident = np.asarray(det.scores, np.float64) >= start
+        # a doubtful box can only continue a track it overlaps: the others are dropped here,
+        # before any is located (the association would give them no id)
+        usable = np.flatnonzero(confident | self.associator.could_continue(det.boxes, classes))
         # nor is a confident box a part of a doubtful one around it
-        kept = np.flatnonzero(contained_duplicates(
-            det.boxes, classes, self.config.associate.merge_contained,
-            lambda i, j: (confident[i] or not confident[j])
-            and (classes[j] != self.class_id or self._same(k, i, k, j))))
+        kept = usable[contained_duplicates(
+            det.boxes[usable], classes[usable], self.config.associate.merge_contained,
+            lambda i, j: (confident[usable[i]] or not confident[usable[j]])
+            and (classes[usable[j]] != self.class_id
+                 or self._same(k, int(usable[i]), k, int(usable[j]))))]
         self.kept[k] = kept
 
         def same_kept(k_a: int, i_a: int, k_b: int, i_b: int) -> bool:

@@ -169,6 +169,22 @@ class Associator:
         return any(t.id == track_id for t in self.tracks
                    if self.frame + 1 - t.last_frame <= self.config.max_missed + 1)
 
+    def could_continue(self, frame_boxes: np.ndarray, frame_classes: np.ndarray) -> np.ndarray:
+        """(N,) bool: which of the next frame's boxes (N, 4) of classes (N,) overlap a live
+        track's predicted box of their class by ``min_iou``: the only boxes a doubtful
+        detection (below ``start_score``) can be matched as, so a caller may skip the rest
+        before any costly check (:meth:`step` would give them id -1)."""
+        frame_boxes = np.asarray(frame_boxes, np.float64).reshape(-1, 4)
+        frame_classes = np.asarray(frame_classes, np.int64).reshape(-1)
+        k = self.frame + 1
+        live = [t for t in self.tracks if k - t.last_frame <= self.config.max_missed + 1]
+        if not live or not len(frame_boxes):
+            return np.zeros(len(frame_boxes), bool)
+        predicted = np.stack([t.box + (k - t.last_frame) * t.velocity for t in live])
+        same_class = np.array([t.class_id for t in live])[:, None] == frame_classes[None, :]
+        iou = np.where(same_class, box_iou(predicted, frame_boxes), 0.0)
+        return iou.max(axis=0) >= max(self.config.min_iou, 1e-12)
+
     def step(self, frame_boxes: np.ndarray, frame_classes: np.ndarray,
              same: Callable[[int, int, int, int], bool] | None = None,
              scores: np.ndarray | None = None, start_score: float = 0.0) -> np.ndarray:
