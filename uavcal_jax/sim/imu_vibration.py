@@ -309,14 +309,14 @@ def _at_rest(mav0: Path, t_ns: np.ndarray, rate_hz: float) -> np.ndarray:
     traj = fit_tum_trajectory(read_ground_truth_csv(gt_csv))
     inside = (t_ns >= traj.t_start * 1e9) & (t_ns <= traj.t_end * 1e9)
     state = traj.state_ns(t_ns[inside])
-    still = rest_weight(state.position, state.angular_velocity_body, rate_hz) >= 1.0
-    first = np.flatnonzero(still)
-    if not len(first):
+    still = rest_weight(state.position, state.angular_velocity_body, rate_hz) >= 1.0 - 1e-9
+    if not still.any():
         raise ValueError(f"{mav0}: the ground truth never rests")
-    end = first[0] + (np.argmin(still[first[0]:]) if not still[first[0]:].all()
-                      else len(still) - first[0])
+    start = int(np.argmax(still))
+    run = still[start:]
+    end = start + (int(np.argmin(run)) if not run.all() else len(run))
     keep = np.zeros(len(t_ns), bool)
-    keep[np.flatnonzero(inside)[first[0]:end]] = True
+    keep[np.flatnonzero(inside)[start:end]] = True
     return keep
 
 
@@ -352,7 +352,8 @@ def mixed_vibration_samples(flight: VibrationSpectrum, rest: VibrationSpectrum,
 
     Each spectrum's samples come from its own generator (:func:`vibration_samples`); where
     ``weight`` is 0 everywhere the result is exactly the flight's samples, and the rest's
-    generator is not drawn from.
+    generator is not drawn from. The two are independent, so midway through a ramp the power
+    dips to half their mean (for the ramp's 0.5 s).
 
     Args:
         flight, rest: the spectra in flight and at rest.
