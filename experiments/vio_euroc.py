@@ -120,15 +120,17 @@ def _mount_label(fields: dict) -> str:
 
 def _simulated(trajectories: Path, name: str, start: float, duration: float | None,
                ideal: bool, cache: Path, seed: int, progress: bool,
-               mount_fields: dict | None = None, sensors: dict | None = None) -> Path:
+               mount_fields: dict | None = None, sensors: dict | None = None,
+               sim_set: tuple[str, ...] = ()) -> Path:
     traj = trajectories / f"{name}.txt"
     # 'full', or a fixed length the trajectory is too short for (UZH-FPV indoor_forward_10
     # spans 29.9 s): fly to its end
     longest = trajectory_span(traj) - start - 0.1
     duration = longest if duration is None else min(duration, longest)
     fields = {**(mount_fields or {}), **(sensors or {})}
-    cfg = SimConfig(trajectory=str(traj), start=start, duration=round(duration, 1), seed=seed,
-                    depth=False, targets=False, ideal_camera=ideal, **fields)
+    cfg = apply_overrides(SimConfig(trajectory=str(traj), start=start,
+                                    duration=round(duration, 1), seed=seed, depth=False,
+                                    targets=False, ideal_camera=ideal, **fields), sim_set)
     tag = name + _mount_label(mount_fields or {}) + ("_ideal" if ideal else "")
     return cached_simulation(cfg, cache, tag, progress=progress)
 
@@ -233,6 +235,9 @@ def main() -> None:
     ap.add_argument("--set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                     help="VioConfig fields for every run, e.g. min_gyro_noise_density=0 "
                          "min_accel_noise_density=0 (the noise floors off)")
+    ap.add_argument("--sim-set", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="SimConfig fields for every simulated flight, after --ideal-sensors, "
+                         "e.g. imu_rest_vibration=false")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     add_write_docs(ap)
     args = ap.parse_args()
@@ -240,6 +245,10 @@ def main() -> None:
         vio_config = apply_overrides(VioConfig(), args.set)
     except DataError as err:
         ap.error(f"--set: {err}")
+    try:
+        apply_overrides(SimConfig(), args.sim_set)
+    except DataError as err:
+        ap.error(f"--sim-set: {err}")
     sensors = IDEAL_SENSORS if args.ideal_sensors else None
     args.out.mkdir(parents=True, exist_ok=True)
     published = json.loads(args.published.read_text()) if args.published else {}
@@ -255,7 +264,7 @@ def main() -> None:
         flights = [(name, _mount_fields(mount, name)) for name in names for mount in args.mount]
         roots = {(name, _mount_label(fields)): _simulated(
             args.trajectories, name, args.start, args.duration, False, args.cache, args.seed,
-            not args.quiet, fields, sensors) for name, fields in flights}
+            not args.quiet, fields, sensors, args.sim_set) for name, fields in flights}
     # compile every jitted function (the marginalisation only once the window is full) before
     # any sequence is timed: all runs share one configuration, so one warm-up serves them all
     run_vio(_read(next(iter(roots.values()))), vio_config, max_frames=WARM_UP_FRAMES)
@@ -269,7 +278,8 @@ def main() -> None:
         print(f"{label}: ATE {rows[-1]['ate_rmse_m']:.3f} m", flush=True)
         if args.ideal and not args.recordings:
             root_i = _simulated(args.trajectories, name, args.start, args.duration, True,
-                                args.cache, args.seed, not args.quiet, fields, sensors)
+                                args.cache, args.seed, not args.quiet, fields, sensors,
+                                args.sim_set)
             ideal[label] = _evaluate(root_i, label + "_ideal", args.out, not args.quiet,
                                      vio_config)
     table = _table(rows, published, ideal)
@@ -277,7 +287,7 @@ def main() -> None:
     sim = [r for r in rows if "(real)" not in r["sequence"]]
     summary = {
         "rows": rows, "ideal": ideal, "duration_s": args.duration, "start_s": args.start,
-        "ideal_sensors": args.ideal_sensors, "vio_set": args.set,
+        "ideal_sensors": args.ideal_sensors, "vio_set": args.set, "sim_set": args.sim_set,
         "mounts": [m[0] if m[1] is None else f"{m[0]}:{m[1]}" for m in args.mount],
         "mean_ate_simulated_m": float(np.mean([r["ate_rmse_m"] for r in sim])) if sim else None,
         "diverged": [r["sequence"] for r in rows if r["diverged"]],
