@@ -76,3 +76,24 @@ def test_a_doubtful_box_that_continues_no_track_is_never_located():
     asked = set(localizer.asked)
     assert tuple(clutter) not in asked and tuple(clutter_part) not in asked
     assert tuple(car + 2) in asked  # its part was checked against it
+
+
+def test_a_loose_doubtful_box_still_marks_the_boxes_inside_it_as_parts():
+    """A track that followed a part of a car (a box inside the car's) is not continued by the
+    part while a larger doubtful box of the whole car, which continues no track, surrounds
+    it: the part box is dropped as the whole's part (located as one target with it), as it
+    was before doubtful boxes that continue no track were dropped unlocated."""
+    config = RunConfig()
+    left = camera_calibrations(SimConfig(resolution=(188, 120)))["cam0"]
+    tracker = TargetTracker(config, 0, Localizer(config, "off", left, reason="off: test"))
+    doubtful = config.detect.score_threshold - 0.1
+    part = np.array([60.0, 50.0, 80.0, 70.0])
+    whole = np.array([20.0, 20.0, 120.0, 100.0])  # IoU with the part's track under min_iou
+    frames = [ImageDetections(part[None], np.array([0.9]), np.zeros(1, int)),
+              ImageDetections(np.stack([whole, part + 1]), np.array([doubtful, doubtful]),
+                              np.zeros(2, int))]
+    out = [tracker.step(0.05 * k, det, np.eye(4), FrameSensors())
+           for k, det in enumerate(frames)]
+    assert out[0].track_id == 0
+    np.testing.assert_array_equal(out[1].track_ids, [-1, -1])
+    assert out[1].track_id is None

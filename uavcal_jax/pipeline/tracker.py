@@ -194,15 +194,17 @@ class TargetTracker:
         # target seen past it, inside its box, is
         start = self.config.detect.score_threshold
         confident = np.asarray(det.scores, np.float64) >= start
-        # a doubtful box can only continue a track it overlaps: the others are dropped here,
-        # before any is located (the association would give them no id)
-        usable = np.flatnonzero(confident | self.associator.could_continue(det.boxes, classes))
+        # a doubtful box continues a track it overlaps, or none: one that overlaps none is
+        # dropped as a part without being located (the association would give it no id);
+        # it still marks the boxes inside it as its parts (a track's part box continuing it
+        # localised a car's part: on a closed-loop flight, 0.87 m off instead of 0.25)
+        loose = ~confident & ~self.associator.could_continue(det.boxes, classes)
         # nor is a confident box a part of a doubtful one around it
-        kept = usable[contained_duplicates(
-            det.boxes[usable], classes[usable], self.config.associate.merge_contained,
-            lambda i, j: (confident[usable[i]] or not confident[usable[j]])
-            and (classes[usable[j]] != self.class_id
-                 or self._same(k, int(usable[i]), k, int(usable[j]))))]
+        kept = np.flatnonzero(contained_duplicates(
+            det.boxes, classes, self.config.associate.merge_contained,
+            lambda i, j: loose[j] or ((confident[i] or not confident[j])
+                                      and (classes[j] != self.class_id
+                                           or self._same(k, i, k, j)))))
         self.kept[k] = kept
 
         def same_kept(k_a: int, i_a: int, k_b: int, i_b: int) -> bool:
