@@ -251,7 +251,7 @@ def test_bad_options_are_usage_errors(capsys, tmp_path, bad):
     assert code == 2 and "usage" in err
 
 
-#: The demo's car, filtered median error bound, m: measured 0.38 m (issue 42 asks 0.5) with the
+#: The demo's car, filtered median error bound, m: measured 0.39 m (issue 42 asks 0.5) with the
 #: shipped weights (fine-tuned on flights rendered with the realistic defaults), their boxes
 #: redrawn from the depth over a ground plane (``refine``) and ByteTrack's two rounds (0.47 m
 #: with one, and one ground height). Small changes upstream move it by about 0.1 m (a few pixels
