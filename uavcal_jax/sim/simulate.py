@@ -1,6 +1,10 @@
 """The flight simulator's orchestration: trajectory -> IMU + ground truth -> rendered frames,
 depth and target labels -> an EuRoC ASL folder.
 
+One job, the order of the stages and what each hands the next; the stages themselves live in
+their modules (trajectory fit, IMU synthesis, frames, writer). Its length is the recording's
+contract spelled out below (time base, body frame, IMU errors, the resolved configuration).
+
 :func:`simulate` writes ``out_dir/mav0`` (the layout of :mod:`uavcal_jax.data.euroc_format`)
 and ``out_dir/sim_config.json`` (the resolved configuration: every default, the seeds of each
 stage, the calibration written, the time range and the counts). The output is built in a

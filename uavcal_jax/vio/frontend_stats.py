@@ -36,6 +36,34 @@ def corner_count(tracker: FeatureTracker, image: np.ndarray) -> int:
     return 0 if corners is None else len(corners)
 
 
+def _lk_both_ways(tracker: FeatureTracker, image0: np.ndarray, image1: np.ndarray):
+    """The tracker's ``max_features`` strongest corners of ``image0`` tracked into ``image1``
+    by LK (its window, pyramid and criteria; from scratch) and back.
+
+    Returns:
+        ``None`` where ``image0`` has no corner; else ``(pts0 (N, 2), pts1 (N, 2), err (N,),
+        found (N,) bool, fb (N,))``: the corners, where they landed, OpenCV's LK error (mean
+        absolute window difference, grey levels), found both ways, and the forward-backward
+        distance (pixels).
+    """
+    cfg = tracker.config
+    img0, img1 = tracker.equalised(image0), tracker.equalised(image1)
+    pts0 = cv2.goodFeaturesToTrack(img0, cfg.max_features, cfg.quality_level,
+                                   cfg.min_distance_px, blockSize=cfg.block_size)
+    if pts0 is None:
+        return None
+    pts0 = pts0.astype(np.float32)
+    lk = tracker.lk_params
+    pts1, st, err = cv2.calcOpticalFlowPyrLK(img0, img1, pts0, None, maxLevel=cfg.lk_max_level,
+                                             **lk)
+    back, st_b, _ = cv2.calcOpticalFlowPyrLK(img1, img0, pts1, None, maxLevel=cfg.lk_max_level,
+                                             **lk)
+    pts0, pts1 = pts0.reshape(-1, 2), pts1.reshape(-1, 2)
+    found = (st.reshape(-1) == 1) & (st_b.reshape(-1) == 1)
+    fb = np.linalg.norm(back.reshape(-1, 2) - pts0, axis=1)
+    return pts0, pts1, err.reshape(-1), found, fb
+
+
 def lk_pair_stats(tracker: FeatureTracker, image0: np.ndarray, image1: np.ndarray
                   ) -> dict[str, float]:
     """Lucas-Kanade from ``image0`` to ``image1`` ((H, W) each) of the tracker's
@@ -49,24 +77,14 @@ def lk_pair_stats(tracker: FeatureTracker, image0: np.ndarray, image1: np.ndarra
         ``fb_px``: their median forward-backward distance, pixels; ``corners``: how many
         corners were tracked. NaN figures when ``image0`` has no corner.
     """
-    cfg = tracker.config
-    img0, img1 = tracker.equalised(image0), tracker.equalised(image1)
-    pts0 = cv2.goodFeaturesToTrack(img0, cfg.max_features, cfg.quality_level,
-                                   cfg.min_distance_px, blockSize=cfg.block_size)
-    if pts0 is None:
+    flow = _lk_both_ways(tracker, image0, image1)
+    if flow is None:
         return {"survival": float("nan"), "residual": float("nan"), "fb_px": float("nan"),
                 "corners": 0}
-    pts0 = pts0.astype(np.float32)
-    lk = tracker.lk_params
-    pts1, st, err = cv2.calcOpticalFlowPyrLK(img0, img1, pts0, None, maxLevel=cfg.lk_max_level,
-                                             **lk)
-    back, st_b, _ = cv2.calcOpticalFlowPyrLK(img1, img0, pts1, None, maxLevel=cfg.lk_max_level,
-                                             **lk)
-    found = (st.reshape(-1) == 1) & (st_b.reshape(-1) == 1)
-    fb = np.linalg.norm(back.reshape(-1, 2) - pts0.reshape(-1, 2), axis=1)
-    ok = found & (fb <= cfg.fb_threshold_px)
+    pts0, _, err, found, fb = flow
+    ok = found & (fb <= tracker.config.fb_threshold_px)
     return {"survival": float(ok.mean()),
-            "residual": float(np.median(err.reshape(-1)[found])) if found.any() else float("nan"),
+            "residual": float(np.median(err[found])) if found.any() else float("nan"),
             "fb_px": float(np.median(fb[found])) if found.any() else float("nan"),
             "corners": len(pts0)}
 
@@ -84,21 +102,12 @@ def stereo_matches(tracker: FeatureTracker, left: np.ndarray, right: np.ndarray
         ``(pts (N, 2) float32 left pixels, status (N,) int8)``: an index into
         :data:`STEREO_STATUS` per corner (the first check it fails).
     """
-    cfg = tracker.config
-    img0, img1 = tracker.equalised(left), tracker.equalised(right)
-    pts0 = cv2.goodFeaturesToTrack(img0, cfg.max_features, cfg.quality_level,
-                                   cfg.min_distance_px, blockSize=cfg.block_size)
-    if pts0 is None:
+    flow = _lk_both_ways(tracker, left, right)
+    if flow is None:
         return np.zeros((0, 2), np.float32), np.zeros(0, np.int8)
-    pts0 = pts0.astype(np.float32)
-    lk = tracker.lk_params
-    pts1, st, _ = cv2.calcOpticalFlowPyrLK(img0, img1, pts0, None, maxLevel=cfg.lk_max_level,
-                                           **lk)
-    back, st_b, _ = cv2.calcOpticalFlowPyrLK(img1, img0, pts1, None, maxLevel=cfg.lk_max_level,
-                                             **lk)
-    pts0, pts1 = pts0.reshape(-1, 2), pts1.reshape(-1, 2)
-    found = (st.reshape(-1) == 1) & (st_b.reshape(-1) == 1)
-    back_ok = found & (np.linalg.norm(back.reshape(-1, 2) - pts0, axis=1) <= cfg.fb_threshold_px)
+    pts0, pts1, _, found, fb = flow
+    cfg = tracker.config
+    back_ok = found & (fb <= cfg.fb_threshold_px)
     xy, xy_r = tracker.normalised(pts0), tracker.normalised(pts1, right=True)
     tol = cfg.stereo_epipolar_px / float(tracker.K0[0, 0])
     geometric = (stereo_epipolar_distance(xy, xy_r, tracker.T_C0C1) <= tol) & stereo_in_front(
