@@ -436,6 +436,11 @@ def test_trajectory_file_keeps_its_clock(tmp_path):
     assert np.abs(seq.ground_truth.position - tum.position[idx]).max() < 0.005
     dots = np.abs(np.sum(seq.ground_truth.quaternion * tum.quaternion[idx], axis=1))
     assert np.degrees(2 * np.arccos(np.minimum(dots, 1.0))).max() < 0.5
+    # a recorded flight: both vibration spectra (in flight, standing) are in the record
+    resolved = json.loads((tmp_path / "rec" / "sim_config.json").read_text())
+    assert resolved["imu_rest_vibration_spectrum"]["bands"][0]["freq_hz"] == pytest.approx(
+        17.56)
+    assert "imu_vibration_spectrum" in resolved
 
 
 @pytest.mark.realdata

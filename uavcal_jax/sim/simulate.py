@@ -48,7 +48,8 @@ offset) make the IMU read rotor vibration, scale and axis errors, g-sensitivity 
 offset (:func:`uavcal_jax.sim.imu_synth.synthesize_imu`); the ground truth stays the motion,
 its bias columns the biases plus what the scale, misalignment and g-sensitivity add
 (:func:`intrinsic_error`: the IMU's systematic error at each sample), and the vibration
-spectrum used is recorded in ``sim_config.json`` (``imu_vibration_spectrum``).
+spectrum used is recorded in ``sim_config.json`` (``imu_vibration_spectrum``; a recorded
+flight's standing one as ``imu_rest_vibration_spectrum``).
 
 Frames. Both EuRoC cameras (cam0, cam1: intrinsics, radial-tangential distortion and
 ``T_BS`` of the real VI-sensor) are rendered; another resolution scales the intrinsics (same
@@ -397,6 +398,8 @@ def _simulate_into(config: SimConfig, root: Path, show_progress: bool) -> SimRep
     }
     if vibration is not None:
         resolved["imu_vibration_spectrum"] = vibration.to_dict()
+    if errors["rest_vibration"] is not None:
+        resolved["imu_rest_vibration_spectrum"] = errors["rest_vibration"].to_dict()
 
     t_write = time.perf_counter()
     with EurocWriter(root, workers=config.png_workers) as writer:
