@@ -152,6 +152,10 @@ class _Track:
     last_frame: int
     last_index: int  # the last matched box's index in its frame
 
+    def predicted(self, k: int) -> np.ndarray:
+        """(4,) the box expected at frame ``k``: the last one moved at its last velocity."""
+        return self.box + (k - self.last_frame) * self.velocity
+
 
 class Associator:
     """Track ids for the detections of one frame after another: Hungarian
@@ -180,7 +184,7 @@ class Associator:
         live = [t for t in self.tracks if k - t.last_frame <= self.config.max_missed + 1]
         if not live or not len(frame_boxes):
             return np.zeros(len(frame_boxes), bool)
-        predicted = np.stack([t.box + (k - t.last_frame) * t.velocity for t in live])
+        predicted = np.stack([t.predicted(k) for t in live])
         same_class = np.array([t.class_id for t in live])[:, None] == frame_classes[None, :]
         iou = np.where(same_class, box_iou(predicted, frame_boxes), 0.0)
         return iou.max(axis=0) >= max(self.config.min_iou, 1e-12)
@@ -219,7 +223,7 @@ class Associator:
         min_iou = max(self.config.min_iou, 1e-12)
         if not tracks or not usable.any():
             return set()
-        predicted = np.stack([t.box + (k - t.last_frame) * t.velocity for t in tracks])
+        predicted = np.stack([t.predicted(k) for t in tracks])
         iou = box_iou(predicted, frame_boxes)
         same_class = np.array([t.class_id for t in tracks])[:, None] == frame_classes[None, :]
         iou = np.where(same_class & usable[None, :], iou, 0.0)
