@@ -42,6 +42,7 @@ from _docs import add_write_docs, write_docs  # the script's folder is first on 
 
 from uavcal_jax.argtypes import parse_vector3
 from uavcal_jax.calib.config import InjectionConfig
+from uavcal_jax.data.tum import read_tum
 from uavcal_jax.pipeline.offset_estimators import (
     DEFAULT_METHOD,
     configure_method,
@@ -55,6 +56,8 @@ from uavcal_jax.sim.config import SimConfig
 #: trains on procedural flights) and of the tests.
 DEFAULT_FLIGHTS = ("MH_04_difficult", "V1_03_difficult", "V2_02_medium")
 MICRO = SHARED_DATA / "euroc_v101_micro"
+#: The trajectory folders ``--flights`` names are looked up in, in order.
+TRAJECTORY_SETS = ("euroc", "uzh_fpv")
 
 
 def physical_offsets(n: int, seed: int) -> np.ndarray:
@@ -64,15 +67,45 @@ def physical_offsets(n: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).uniform(-bound, bound, size=(n, 6))
 
 
-def _flights(args) -> list[Path]:
+def trajectory_file(name: str) -> Path:
+    """The TUM file of trajectory ``name`` among :data:`TRAJECTORY_SETS`."""
+    for folder in TRAJECTORY_SETS:
+        path = SHARED_DATA / "trajectories" / folder / f"{name}.txt"
+        if path.is_file():
+            return path
+    raise SystemExit(f"no trajectory {name!r} in {SHARED_DATA / 'trajectories'} "
+                     f"({', '.join(TRAJECTORY_SETS)})")
+
+
+def flight_names(text: str) -> list[str]:
+    """``--flights``: comma-separated names, or ``all`` (every trajectory of
+    :data:`TRAJECTORY_SETS` present)."""
+    if text != "all":
+        return [f for f in text.split(",") if f]
+    return sorted(p.stem for folder in TRAJECTORY_SETS
+                  for p in (SHARED_DATA / "trajectories" / folder).glob("*.txt"))
+
+
+def clipped_start(path: Path, start: float, duration: float) -> float:
+    """``start``, moved earlier (not below 0) so that ``duration`` seconds fit in the
+    trajectory (the UZH-FPV flights last 19-67 s)."""
+    length = float(np.ptp(read_tum(path).t_ns)) * 1e-9
+    return max(0.0, min(start, length - duration - 0.05))
+
+
+def simulated_flights(args) -> list[Path]:
+    """The folders of ``args.flights`` simulated (``start``, ``duration``, ``seed``,
+    ``imu_rotation``, ``cache``, ``quiet``), each with its own physical-range offset."""
     offsets = physical_offsets(len(args.flights), args.seed)
     out = []
     for name, offset in zip(args.flights, offsets, strict=True):
-        config = SimConfig(trajectory=str(SHARED_DATA / "trajectories" / "euroc" / f"{name}.txt"),
-                           start=args.start, duration=args.duration, seed=args.seed,
+        path = trajectory_file(name)
+        config = SimConfig(trajectory=str(path),
+                           start=clipped_start(path, args.start, args.duration),
+                           duration=args.duration, seed=args.seed,
                            imu_offset=tuple(float(v) for v in offset), targets=False,
                            imu_rotation_deg=args.imu_rotation)
-        out.append(cached_simulation(config, args.cache, name))
+        out.append(cached_simulation(config, args.cache, name, progress=not args.quiet))
     return out
 
 
@@ -143,10 +176,11 @@ def _table(pooled: dict, hybrid_rows: list[dict], args) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--flights", type=lambda s: [f for f in s.split(",") if f],
-                    default=list(DEFAULT_FLIGHTS), help="EuRoC trajectory names, comma-separated "
-                    "[default: %(default)s]")
-    ap.add_argument("--start", type=float, default=10.0, help="seconds into each trajectory")
+    ap.add_argument("--flights", type=flight_names, default=list(DEFAULT_FLIGHTS),
+                    help="EuRoC or UZH-FPV trajectory names, comma-separated, or 'all' (the "
+                         "22 of both sets) [default: %(default)s]")
+    ap.add_argument("--start", type=float, default=10.0,
+                    help="seconds into each trajectory (earlier where the flight is shorter)")
     ap.add_argument("--duration", type=float, default=30.0, help="seconds per flight")
     ap.add_argument("--seed", type=int, default=7, help="offsets, IMU noise and scenes")
     ap.add_argument("--imu-rotation", type=parse_vector3, default=None, metavar="RX,RY,RZ",
@@ -174,7 +208,7 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
 
     extra = dict(_named_run(text) for text in args.checkpoint)
-    flights = _flights(args)
+    flights = simulated_flights(args)
     rows = _score(flights, methods, extra, args)
     pooled = pooled_scores(rows)
     hybrid_rows = []

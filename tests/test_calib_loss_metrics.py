@@ -142,3 +142,23 @@ def test_gaussian_nll_is_scipys_less_its_constant_and_teaches_only_sigma(pair):
     np.testing.assert_allclose(jax.grad(gaussian_nll, argnums=1)(pred, at_error, target), 0.0,
                                atol=1e-6)
     assert float(jnp.abs(g_sigma).max()) > 0
+
+
+def test_sign_f1_without_a_channel_pools_the_others_counts():
+    """Under the paper protocol ax (gravity's reaction) is always positive and always predicted
+    so: it lifts the pooled F1. Left out, the F1 is the other channels' micro average."""
+    from uavcal_jax.calib.metrics import sign_f1_without
+
+    rng = np.random.default_rng(0)
+    target = rng.normal(size=(50, 6))
+    pred = target + rng.normal(scale=1.0, size=(50, 6))
+    target[:, 3], pred[:, 3] = 9.8, 9.7  # ax
+    metrics = jax.tree.map(lambda x: np.asarray(x).tolist(), calibration_metrics(
+        jnp.asarray(pred), jnp.asarray(target)))
+    channels = ("gx", "gy", "gz", "ax", "ay", "az")
+    keep = [0, 1, 2, 4, 5]
+    p, t = pred[:, keep] > 0, target[:, keep] > 0
+    tp, fp, fn = np.sum(p & t), np.sum(p & ~t), np.sum(~p & t)
+    assert sign_f1_without(metrics, channels, ("ax",)) == pytest.approx(2 * tp / (2 * tp + fp + fn))
+    assert sign_f1_without(metrics, channels, ()) == pytest.approx(metrics["sign_f1"])
+    assert metrics["sign_f1"] > sign_f1_without(metrics, channels, ("ax",))

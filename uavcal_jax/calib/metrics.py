@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["SENSORS", "calibration_metrics", "metric_sums", "metrics_from_sums", "seed_summary",
-           "sensor_rmse"]
+           "sensor_rmse", "sign_f1_without"]
 
 #: ``(sensor, channel-name prefix)``: the names of :func:`uavcal_jax.calib.predict.channel_names`.
 SENSORS = (("gyro", "g"), ("accel", "a"))
@@ -86,7 +86,18 @@ def metrics_from_sums(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
         for key, name in (("sq_z", "z_rms"), ("sq_sigma", "sigma_rms")):
             per[name] = jnp.sqrt(_ratio(sums[key], sums["count"]))
             overall[name] = jnp.sqrt(_ratio(jnp.sum(sums[key]), jnp.sum(sums["count"])))
-    return {**overall, **{f"{k}_per_channel": v for k, v in per.items()}}
+    counts = {f"{k}_per_channel": sums[k] for k in ("tp", "fp", "fn")}
+    return {**overall, **{f"{k}_per_channel": v for k, v in per.items()}, **counts}
+
+
+def sign_f1_without(metrics: dict, channels: Sequence[str], drop: Sequence[str]) -> float:
+    """The overall sign F1 (eq. 21, micro average) of one seed's :func:`metrics_from_sums`
+    (plain values) with the channels named in ``drop`` left out: e.g. ``ax``, whose sign
+    never changes under the paper's protocol (gravity's reaction), which inflates F1."""
+    keep = np.array([c not in drop for c in channels])
+    tp, fp, fn = (float(np.sum(np.asarray(metrics[f"{k}_per_channel"])[keep]))
+                  for k in ("tp", "fp", "fn"))
+    return 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn > 0 else 0.0
 
 
 def calibration_metrics(pred: jax.Array, target: jax.Array,
@@ -111,13 +122,18 @@ def sensor_rmse(offset_rmse_per_channel, channels: Sequence[str]) -> dict[str, f
 def seed_summary(per_seed: Sequence[dict], channels: Sequence[str]) -> dict:
     """Headline numbers of one method on one trial, averaged over seeds, from eq. 19-23
     metrics (one :func:`metrics_from_sums` dict of plain values per seed): ``sign_f1`` and
-    ``offset_rmse`` (every channel pooled), ``offset_rmse_per_channel`` and
+    ``offset_rmse`` (every channel pooled), ``sign_f1_without_ax`` (:func:`sign_f1_without`;
+    ``None`` without an ``ax`` channel), ``offset_rmse_per_channel`` and
     ``sign_f1_per_channel`` (lists of ``C``), and ``gyro_rmse`` / ``accel_rmse``
     (:func:`sensor_rmse` per seed, then the mean; ``None`` without that sensor)."""
     def avg(key):
         return np.mean([np.asarray(m[key], np.float64) for m in per_seed], axis=0)
 
     out = {"sign_f1": float(avg("sign_f1")), "offset_rmse": float(avg("offset_rmse")),
+           "sign_f1_without_ax": (float(np.mean([sign_f1_without(m, channels, ("ax",))
+                                                 for m in per_seed]))
+                                  if "ax" in channels and "tp_per_channel" in per_seed[0]
+                                  else None),
            "offset_rmse_per_channel": avg("offset_rmse_per_channel").tolist(),
            "sign_f1_per_channel": avg("sign_f1_per_channel").tolist()}
     per_sensor = [sensor_rmse(m["offset_rmse_per_channel"], channels) for m in per_seed]

@@ -50,6 +50,10 @@ class OffsetEstimate:
         settings: the configuration the estimate ran with, a dataclass tree (resolved against
             the recording where a method resolves one), for ``OUT.config.json``.
         info: JSON-ready facts of the method (counts, the model, ...), for the summary.
+        sigma: ``(C,)`` the standard deviation of ``median``'s error in its channels, the
+            items' correlation accounted for
+            (:func:`uavcal_jax.pipeline.offset_uncertainty.recording_sigma`), or ``None``
+            for a method that cannot tell; ``inf`` where a channel is not determined.
     """
 
     offset: np.ndarray
@@ -62,6 +66,7 @@ class OffsetEstimate:
     label: str
     settings: Any
     info: dict = field(default_factory=dict)
+    sigma: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.label not in LABELS:
@@ -74,6 +79,10 @@ class OffsetEstimate:
                 or np.shape(self.item_t_s) != (np.shape(self.per_item)[0],)):
             raise ValueError("offset must be (6,), median (C,), per_item (N, C) and item_t_s "
                              f"(N,) for C = {c} channels")
+        if self.sigma is not None and (np.shape(self.sigma) != (c,)
+                                       or np.any(~(np.asarray(self.sigma) > 0.0))):
+            raise ValueError(f"sigma must be (C,) = ({c},) positive numbers (inf: not "
+                             f"determined), got {np.asarray(self.sigma).tolist()}")
 
     @property
     def channel_index(self) -> np.ndarray:

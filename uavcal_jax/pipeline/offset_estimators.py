@@ -5,7 +5,8 @@ that builds the method's options from ``--set``-style overrides (and the keyword
 declares), and an ``estimate(sequence, options, *, progress)`` of a recording *without ground
 truth* returning an :class:`~uavcal_jax.pipeline.offset_estimate.OffsetEstimate`. The
 built-in ones are :data:`DEFAULT_METHOD` (``vio-bias``, the most accurate measured),
-``visual-ls``, ``self-calib`` and ``transformer``; a new method is a small module here, beside
+``visual-ls``, ``self-calib``, ``transformer`` and ``auto`` (those fused by their sigmas);
+a new method is a small module here, beside
 these, listed in :data:`METHODS` below (so that ``--help`` lists it) and given its options'
 subtree in :class:`~uavcal_jax.pipeline.run_config.OffsetStageConfig`.
 """
@@ -16,7 +17,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from uavcal_jax.errors import DataError
-from uavcal_jax.pipeline import self_calib, transformer_offset, vio_bias, visual_ls
+from uavcal_jax.pipeline import auto_offset, self_calib, transformer_offset, vio_bias, visual_ls
 from uavcal_jax.pipeline.offset_estimate import OffsetEstimate, OffsetMethod
 
 __all__ = ["DEFAULT_METHOD", "METHODS", "configure_method", "get_method", "method_names",
@@ -25,7 +26,7 @@ __all__ = ["DEFAULT_METHOD", "METHODS", "configure_method", "get_method", "metho
 #: The methods by name, in ``--help`` order.
 METHODS: dict[str, OffsetMethod] = {
     m.name: m for m in (vio_bias.METHOD, visual_ls.METHOD, self_calib.METHOD,
-                        transformer_offset.METHOD)}
+                        transformer_offset.METHOD, auto_offset.METHOD)}
 #: The method used when none is named: measured the most accurate (the report of issue 20).
 DEFAULT_METHOD = vio_bias.METHOD.name
 

@@ -96,11 +96,15 @@ def pooled_scores(rows: list[dict]) -> dict[str, dict]:
         true = np.array([r["true"] for r in scored], np.float64)
         out[method] = _scores(pred, true, channels)
         if all(r.get("sigma") is not None for r in scored):  # the z-scores' spread
-            z = (pred - true) / np.array([r["sigma"] for r in scored], np.float64)
+            # a channel a method could not determine (sigma null: infinite) is left out
+            sigma = np.array([[np.nan if v is None else v for v in r["sigma"]]
+                              for r in scored], np.float64)
+            z = (pred - true) / sigma
             for sensor, head in SENSORS:
                 pick = [j for j, c in enumerate(channels) if c.startswith(head)]
-                out[method][f"{sensor}_z_rms"] = (float(np.sqrt(np.mean(np.square(z[:, pick]))))
-                                                  if pick else None)
+                finite = z[:, pick][np.isfinite(z[:, pick])]
+                out[method][f"{sensor}_z_rms"] = (float(np.sqrt(np.mean(np.square(finite))))
+                                                  if finite.size else None)
         for r in scored:
             truths.setdefault(r["recording"], {}).update(zip(r["channels"], r["true"],
                                                              strict=True))

@@ -122,6 +122,9 @@ def predict_offset(sequence: Sequence, method: str = DEFAULT_METHOD, options: An
         ``summary`` (JSON-ready): ``method``, ``label``, ``sequence`` (the recording's
         folder, else its name), ``channels``, ``item`` (``window`` or ``frame``) and
         ``items``, the method's ``info``, ``offset`` (the median, in ``channels``),
+        ``sigma`` (the estimate's standard deviation in ``channels``,
+        :attr:`~uavcal_jax.pipeline.offset_estimate.OffsetEstimate.sigma`; ``None`` when the
+        method gives none; a channel it cannot determine is ``null``),
         ``per_window`` (each item's estimate; a VIO frame's for ``vio-bias``) with
         ``per_window_std`` and ``window_start_s`` (the items' times, seconds since the first
         frame), ``span_ns`` (the recording's span the estimate covers,
@@ -145,6 +148,8 @@ def predict_offset(sequence: Sequence, method: str = DEFAULT_METHOD, options: An
         "channels": list(estimate.channels), "item": estimate.item, "items": len(per_item),
         **estimate.info,
         "offset": np.asarray(estimate.median, np.float64).tolist(),
+        "sigma": None if estimate.sigma is None else [
+            float(v) if np.isfinite(v) else None for v in estimate.sigma],
         "per_window_std": per_item.std(axis=0).tolist(),
         "per_window": per_item.tolist(),
         "window_start_s": np.asarray(estimate.item_t_s, np.float64).tolist(),

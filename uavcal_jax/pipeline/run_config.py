@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 
 from uavcal_jax.detect.tile import TileConfig
+from uavcal_jax.pipeline.auto_offset import AutoOptions, AutoSettings
 from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD, configure_method, method_names
 from uavcal_jax.pipeline.self_calib import SelfCalibOptions
 from uavcal_jax.pipeline.transformer_offset import TransformerSettings
@@ -215,6 +216,8 @@ class OffsetStageConfig:
         self_calib: :class:`~uavcal_jax.pipeline.self_calib.SelfCalibOptions`.
         transformer: :class:`~uavcal_jax.pipeline.transformer_offset.TransformerSettings`
             (the calibrator's run folder, checkpoint kind, frame encoder dtype).
+        auto: :class:`~uavcal_jax.pipeline.auto_offset.AutoSettings` (the methods fused; each
+            with its options above).
     """
 
     method: str = DEFAULT_METHOD
@@ -222,6 +225,7 @@ class OffsetStageConfig:
     visual_ls: VisualGyroConfig = VisualGyroConfig()
     self_calib: SelfCalibOptions = SelfCalibOptions()
     transformer: TransformerSettings = TransformerSettings()
+    auto: AutoSettings = AutoSettings()
 
     def __post_init__(self):
         if self.method not in (*method_names(), NO_OFFSET):
@@ -239,6 +243,12 @@ class OffsetStageConfig:
         Raises:
             DataError: the transformer's run folder is not one (its ``configure``).
         """
+        if self.method == "auto":
+            return AutoOptions(methods=self.auto.methods,
+                               vio_bias=dataclasses.replace(self.vio_bias, vio=vio),
+                               visual_ls=self.visual_ls,
+                               self_calib=dataclasses.replace(self.self_calib, vio=vio),
+                               transformer=self.transformer)
         settings = getattr(self, self.method.replace("-", "_"))
         if isinstance(settings, TransformerSettings):  # a run folder to read, at run time
             return configure_method(self.method, **dataclasses.asdict(settings))

@@ -37,11 +37,16 @@ from uavcal_jax.pipeline.offset_estimate import (
     OffsetMethod,
     check_sequence,
 )
+from uavcal_jax.pipeline.offset_uncertainty import recording_sigma
 from uavcal_jax.pipeline.vio_bias import TAIL_FRACTION
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.vio.config import VioConfig
 from uavcal_jax.vio.run import run_vio
 from uavcal_jax.vio.selfcalib import DescentConfig, descend_offset, pin_window_biases
+
+#: Seconds per batch-means block of the windows' estimates: shorter than their spacing, so
+#: each window is a block of its own.
+WINDOW_BLOCK_S = 0.1
 
 __all__ = ["METHOD", "NearestWindows", "SelfCalibOptions", "configure", "estimate",
            "window_targets"]
@@ -133,9 +138,10 @@ def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(),
 
     ``info`` holds ``frames``, ``resets``, ``windows_tried``, ``windows_used`` (those whose fit
     stayed finite), each one's ``window_sigma`` (W, 6) (the Hessian's Cramer-Rao standard
-    deviation, rad/s and m/s^2) and the estimate's ``sigma`` (6,): their median over windows,
-    as the transformer's (the windows share one flight, so their errors are not taken as
-    independent: the median's sigma is not divided by the windows' count).
+    deviation, rad/s and m/s^2). The estimate's sigma is the windows' batch-means standard
+    error (each window a block: they lie seconds apart) with their median Cramer-Rao sigma
+    over the root of their count as what they share
+    (:func:`~uavcal_jax.pipeline.offset_uncertainty.recording_sigma`).
 
     Raises:
         DataError: what :func:`~uavcal_jax.vio.run.run_vio` refuses, no full window in the
@@ -175,13 +181,16 @@ def estimate(sequence: Sequence, options: SelfCalibOptions = SelfCalibOptions(),
     info = {"frames": len(result.frames), "resets": result.resets,
             "windows_tried": len(windows), "windows_used": len(fitted),
             "tail_fraction": options.tail_fraction,
-            "window_sigma": np.stack(sigmas).tolist(),
-            "sigma": np.median(np.stack(sigmas), axis=0).tolist()}
+            "window_sigma": np.stack(sigmas).tolist()}
+    item_t_s = (t_ns - t_frames[0]) * 1e-9
+    sigma = recording_sigma(per_window, item_t_s, WINDOW_BLOCK_S, common=np.median(
+        np.stack(sigmas), axis=0) / np.sqrt(len(fitted)))
     return OffsetEstimate(
         offset=median, channels=SIX_CHANNELS, median=median, per_item=per_window,
-        item_t_s=(t_ns - t_frames[0]) * 1e-9, item="window",
+        item_t_s=item_t_s, item="window",
         span_ns=(int(t_ns[0]), int(t_ns[-1])), label="total",
-        settings=dataclasses.replace(options, vio=result.config), info=info)
+        settings=dataclasses.replace(options, vio=result.config), info=info,
+        sigma=np.maximum(sigma, np.finfo(np.float64).tiny))
 
 
 METHOD = OffsetMethod(

@@ -3,6 +3,10 @@
 
 The recording is cut into the run's windows, every window gets the model's estimate, and the
 median over windows is the recording's (:func:`uavcal_jax.calib.predict.predict_on_sequence`).
+Its standard deviation (for a model with an uncertainty head, ``model.variance``) is the
+windows' batch-means standard error, one block per window length, with what the windows
+share: the model's median window sigma times the run's measured common scale
+(:data:`UNCERTAINTY_FILE`, :func:`common_scale`).
 What it estimates is what it was trained to predict: the run's label in force
 (:attr:`uavcal_jax.calib.config.InjectionConfig.target`). An IMU mounted otherwise than in
 the training flights (gravity past :data:`MOUNTING_TOLERANCE_DEG` from theirs) is tilted into
@@ -12,6 +16,7 @@ their mounting for the model, and the estimate turned back (:func:`mounting_alig
 from __future__ import annotations
 
 import dataclasses
+import json
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -35,9 +40,50 @@ from uavcal_jax.pipeline.offset_estimate import (
     OffsetMethod,
     check_sequence,
 )
+from uavcal_jax.pipeline.offset_uncertainty import recording_sigma
 
-__all__ = ["METHOD", "MOUNTING_TOLERANCE_DEG", "TransformerOptions", "TransformerSettings",
-           "configure", "estimate", "mounting_alignment", "run_folder"]
+__all__ = ["METHOD", "MOUNTING_TOLERANCE_DEG", "UNCERTAINTY_FILE", "TransformerOptions",
+           "TransformerSettings", "common_scale", "configure", "estimate", "mounting_alignment",
+           "run_folder", "write_common_scale"]
+
+#: The file in a run folder holding its measured common scale (:func:`common_scale`).
+UNCERTAINTY_FILE = "uncertainty.json"
+
+
+def common_scale(run_dir: str | Path, channels) -> np.ndarray:
+    """``(C,)`` the share of the model's median window sigma that a recording's windows have in
+    common, per channel of ``channels``, as measured for the run (:data:`UNCERTAINTY_FILE`,
+    written by ``experiments/calib_uncertainty.py``); 1 where it was not measured (the
+    window sigma taken as wholly shared: no credit for averaging windows).
+
+    Raises:
+        DataError: the file is there but unreadable or malformed (named).
+    """
+    path = Path(run_dir) / UNCERTAINTY_FILE
+    out = np.ones(len(channels))
+    if not path.is_file():
+        return out
+    try:
+        scales = json.loads(path.read_text())["common_scale"]
+        for i, c in enumerate(channels):
+            if c in scales:
+                out[i] = float(scales[c])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"not an uncertainty file ({type(exc).__name__}: {exc}); expected "
+                        '{"common_scale": {"gx": K, ...}}', path) from exc
+    if not np.all(np.isfinite(out) & (out >= 0.0)):
+        raise DataError(f"common_scale must be finite and >= 0, got {out.tolist()}", path)
+    return out
+
+
+def write_common_scale(run_dir: str | Path, scales: dict[str, float], facts: dict) -> Path:
+    """Write ``scales`` (channel -> k) and the ``facts`` of their measurement to the run's
+    :data:`UNCERTAINTY_FILE`, atomically."""
+    path = Path(run_dir) / UNCERTAINTY_FILE
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_text(json.dumps({"common_scale": scales, **facts}, indent=1) + "\n")
+    tmp.replace(path)
+    return path
 
 
 @dataclass(frozen=True)
@@ -131,8 +177,13 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
     angle = info.get("gravity_angle_deg")
     if angle is not None and angle > MOUNTING_TOLERANCE_DEG:
         info, prediction = _predict_remounted(sequence, options, info, prediction)
-    if prediction.sigma is not None:  # a model with an uncertainty (model.variance)
-        info = {**info, "sigma": prediction.sigma.tolist()}
+    sigma = None
+    if prediction.per_window_sigma is not None:  # a model with an uncertainty (model.variance)
+        common = common_scale(options.run_dir, prediction.channels) * prediction.sigma
+        sigma = np.maximum(recording_sigma(prediction.per_window, prediction.start_s,
+                                           run.window.duration, common=common),
+                           np.finfo(np.float64).tiny)
+        info = {**info, "window_sigma_median": prediction.sigma.tolist()}
     duration_ns = int(round(run.window.duration * 1e9))
     start_ns = prediction.start_ns
     return OffsetEstimate(
@@ -141,7 +192,7 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
         per_item=np.asarray(prediction.per_window, np.float64),
         item_t_s=np.asarray(prediction.start_s, np.float64), item="window",
         span_ns=(int(start_ns[0]), int(start_ns[-1]) + duration_ns - 1),
-        label=run.injection.target, settings=run, info=info)
+        label=run.injection.target, settings=run, info=info, sigma=sigma)
 
 
 def mounting_alignment(accel: np.ndarray, training_specific_force) -> np.ndarray:

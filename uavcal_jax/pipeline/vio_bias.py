@@ -44,6 +44,7 @@ from uavcal_jax.pipeline.offset_estimate import (
     OffsetMethod,
     check_sequence,
 )
+from uavcal_jax.pipeline.offset_uncertainty import recording_sigma
 from uavcal_jax.vio.config import VioConfig
 from uavcal_jax.vio.run import VioResult, run_vio
 
@@ -60,6 +61,13 @@ GOOD_STATUSES = ("tracking",)
 TAIL_FRACTION = 2.0 / 3.0
 #: Where the accelerometer estimate comes from (:attr:`VioBiasOptions.accel`).
 ACCEL_SOURCES = ("alignment", "states")
+#: Seconds per batch-means block of the bias states
+#: (:func:`~uavcal_jax.pipeline.offset_uncertainty.recording_sigma`): a VIO's window forgets
+#: its bias states' noise over a few seconds.
+STATE_BLOCK_S = 3.0
+#: The sigma's calibration per channel (gyro xyz, then accel xyz from the states), measured by
+#: ``experiments/calib_uncertainty.py`` on flights apart from those the tables judge it on.
+SIGMA_SCALE = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,16 +175,20 @@ def from_vio(sequence: Sequence, result: VioResult,
                         "estimate", sequence.root or sequence.name)
     info = {"frames": len(frames), "frames_used": int(used.size), "resets": result.resets,
             "tail_fraction": options.tail_fraction, "accel": options.accel}
+    first_ns = int(sequence.camera("cam0").t_ns[0])
+    item_t_s = (t_ns[used] - first_ns) * 1e-9
+    sigma = recording_sigma(bias[used], item_t_s, STATE_BLOCK_S, scale=np.array(SIGMA_SCALE))
     if options.accel == "alignment":
         median = median.copy()
         median[3:], info["alignment"] = _aligned_accel(sequence, frames, good, median[:3],
                                                        options.node_spacing_s)
-    first_ns = int(sequence.camera("cam0").t_ns[0])
+        sigma[3:] = info["alignment"]["bias_accel_std"]
     return OffsetEstimate(
         offset=median, channels=SIX_CHANNELS, median=median, per_item=bias[used],
-        item_t_s=(t_ns[used] - first_ns) * 1e-9, item="frame",
+        item_t_s=item_t_s, item="frame",
         span_ns=(int(t_ns[used[0]]), int(t_ns[used[-1]])), label="total",
-        settings=dataclasses.replace(options, vio=result.config), info=info)
+        settings=dataclasses.replace(options, vio=result.config), info=info,
+        sigma=np.maximum(sigma, np.finfo(np.float64).tiny))
 
 
 def _aligned_accel(sequence: Sequence, frames, good: np.ndarray, bias_gyro: np.ndarray,

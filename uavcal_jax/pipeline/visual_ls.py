@@ -28,12 +28,20 @@ from uavcal_jax.pipeline.offset_estimate import (
     OffsetMethod,
     check_sequence,
 )
+from uavcal_jax.pipeline.offset_uncertainty import recording_sigma
 from uavcal_jax.vio.visual_gyro import VisualGyroConfig, visual_gyro_bias
 
 __all__ = ["METHOD", "configure", "estimate"]
 
 #: The channels this method estimates.
 GYRO_CHANNELS = SIX_CHANNELS[:3]
+#: Seconds per batch-means block of the frame pairs' estimates
+#: (:func:`~uavcal_jax.pipeline.offset_uncertainty.recording_sigma`): a pair's rotation error
+#: comes from its tracks, which the next pairs share for a second or so.
+PAIR_BLOCK_S = 1.0
+#: The sigma's calibration per gyro axis, measured by ``experiments/calib_uncertainty.py`` on
+#: flights apart from those the tables judge it on.
+SIGMA_SCALE = (1.0, 1.0, 1.0)
 
 
 def configure(overrides: Iterable[str] = ()) -> VisualGyroConfig:
@@ -64,11 +72,15 @@ def estimate(sequence: Sequence, options: VisualGyroConfig = VisualGyroConfig(),
     span_ns = (int(mid_ns[0]) - half_ns, int(mid_ns[-1]) + half_ns)
     offset = np.zeros(6)
     offset[:3] = bias
+    item_t_s = (mid_ns - first_ns) * 1e-9
+    sigma = recording_sigma(per_interval[used], item_t_s, PAIR_BLOCK_S,
+                            scale=np.array(SIGMA_SCALE))
     return OffsetEstimate(
         offset=offset, channels=GYRO_CHANNELS, median=np.asarray(bias, np.float64),
-        per_item=per_interval[used], item_t_s=(mid_ns - first_ns) * 1e-9, item="frame pair",
+        per_item=per_interval[used], item_t_s=item_t_s, item="frame pair",
         span_ns=span_ns, label="total", settings=options,
-        info={"intervals": int(per_interval.shape[0]), "intervals_used": int(used.sum())})
+        info={"intervals": int(per_interval.shape[0]), "intervals_used": int(used.sum())},
+        sigma=np.maximum(sigma, np.finfo(np.float64).tiny))
 
 
 METHOD = OffsetMethod(
