@@ -86,11 +86,12 @@ def flight_names(text: str) -> list[str]:
                   for p in (SHARED_DATA / "trajectories" / folder).glob("*.txt"))
 
 
-def clipped_start(path: Path, start: float, duration: float) -> float:
-    """``start``, moved earlier (not below 0) so that ``duration`` seconds fit in the
-    trajectory (the UZH-FPV flights last 19-67 s)."""
-    length = float(np.ptp(read_tum(path).t_ns)) * 1e-9
-    return max(0.0, min(start, length - duration - 0.05))
+def clipped_span(path: Path, start: float, duration: float) -> tuple[float, float]:
+    """``(start, duration)`` fitted into the trajectory (the UZH-FPV flights last 19-67 s):
+    the start moved earlier (not below 0), then the duration cut to what is left."""
+    length = float(np.ptp(read_tum(path).t_ns)) * 1e-9 - 0.05
+    start = max(0.0, min(start, length - duration))
+    return start, min(duration, length - start)
 
 
 def simulated_flights(args) -> list[Path]:
@@ -100,9 +101,8 @@ def simulated_flights(args) -> list[Path]:
     out = []
     for name, offset in zip(args.flights, offsets, strict=True):
         path = trajectory_file(name)
-        config = SimConfig(trajectory=str(path),
-                           start=clipped_start(path, args.start, args.duration),
-                           duration=args.duration, seed=args.seed,
+        start, duration = clipped_span(path, args.start, args.duration)
+        config = SimConfig(trajectory=str(path), start=start, duration=duration, seed=args.seed,
                            imu_offset=tuple(float(v) for v in offset), targets=False,
                            imu_rotation_deg=args.imu_rotation)
         out.append(cached_simulation(config, args.cache, name, progress=not args.quiet))

@@ -10,7 +10,13 @@ import pytest
 
 from uavcal_jax.calib import inference
 from uavcal_jax.calib.config import CalibConfig
-from uavcal_jax.calib.model import GRAY_WEIGHTS, NORMALIZATION, Calibrator, patchify
+from uavcal_jax.calib.model import (
+    GRAY_WEIGHTS,
+    NORMALIZATION,
+    Calibrator,
+    patchify,
+    without_correction,
+)
 from uavcal_jax.calib.train import create_train_state, train_step
 from uavcal_jax.config import apply_overrides
 
@@ -123,6 +129,30 @@ def test_an_untrained_window_mean_head_predicts_the_window_mean(sequence):
     np.testing.assert_allclose(np.asarray(out), want, atol=1e-5)
     with pytest.raises(ValueError, match="standardize"):
         apply_overrides(CONFIG, ["model.closed_form=window_mean", "model.standardize=false"])
+
+
+def test_without_correction_a_trained_window_mean_head_is_its_closed_form(sequence):
+    """The credit-assignment rows' "closed form alone": a head given weights (as training
+    does) moves the prediction off the window mean; :func:`without_correction` puts it back
+    exactly, on a state with a leading seed axis too."""
+    frames, index, mask, imu = sequence
+    config = apply_overrides(CONFIG, ["model.closed_form=window_mean"])
+    state = create_train_state(config, jax.random.key(3),
+                               {"frames": frames[index[:1]], "imu": imu[:1], "mask": mask[:1]})
+    variables = state.variables()
+    params = jax.tree.map(lambda x: x, variables["params"])
+    head = params["noise_predictor"]["head"]
+    head["kernel"] = 0.3 * jax.random.normal(jax.random.key(5), head["kernel"].shape)
+    head["bias"] = jnp.ones_like(head["bias"])
+    model, x = Calibrator(config.model), _gather(frames, index)
+    closed = model.apply(variables, x, imu, mask)
+    trained = model.apply({**variables, "params": params}, x, imu, mask)
+    assert float(jnp.max(jnp.abs(trained - closed))) > 0.01
+    zeroed = model.apply({**variables, "params": without_correction(params)}, x, imu, mask)
+    np.testing.assert_array_equal(np.asarray(zeroed), np.asarray(closed))
+    stacked = jax.tree.map(lambda a: jnp.stack([a, a]), params)
+    assert all(float(jnp.max(jnp.abs(v))) == 0.0 for v in jax.tree.leaves(
+        without_correction(stacked)["noise_predictor"]["head"]))
 
 
 def test_padded_frames_change_nothing(gray, sequence):

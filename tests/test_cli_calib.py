@@ -38,6 +38,7 @@ from uavcal_jax.data.true_offset import true_offset
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataRepairWarning
 from uavcal_jax.pipeline.offset_estimators import DEFAULT_METHOD
+from uavcal_jax.pipeline.offset_uncertainty import recording_sigma
 from uavcal_jax.runs import KINDS
 from uavcal_jax.sim.config import SimConfig
 from uavcal_jax.sim.simulate import simulate
@@ -402,8 +403,9 @@ def test_transformer_tilts_an_imu_mounted_otherwise_back(euroc_micro, monkeypatc
 
 def test_a_run_with_an_uncertainty_predicts_one(seqs, tmp_path, capsys):
     """``model.variance``: evaluation scores the z-scores' spread, and ``calib predict`` gives
-    ``sigma``, the median over windows of the K-seed mixture's standard deviation, computed
-    here from the training code's eval step."""
+    ``window_sigma_median``, the median over windows of the K-seed mixture's standard
+    deviation, computed here from the training code's eval step, and the recording's
+    ``sigma`` from it."""
     run = tmp_path / "variance"
     assert _train(seqs, run, "--set", "model.variance=true") == 0
     capsys.readouterr()
@@ -426,7 +428,12 @@ def test_a_run_with_an_uncertainty_predicts_one(seqs, tmp_path, capsys):
     pred, log_sigma = np.asarray(out["pred"]), np.asarray(out["log_sigma"])  # (K, W, C)
     sigma = np.sqrt(np.exp(2 * log_sigma).mean(0) + pred.var(0))
     np.testing.assert_allclose(res["per_window"], pred.mean(0), atol=2e-5)
-    np.testing.assert_allclose(res["sigma"], np.median(sigma, axis=0), rtol=1e-4)
+    np.testing.assert_allclose(res["window_sigma_median"], np.median(sigma, axis=0), rtol=1e-4)
+    # the recording's sigma: the windows' batch-means standard error (one block per window
+    # length) and, as shared, the median window sigma (no uncertainty.json: k = 1)
+    want = recording_sigma(np.asarray(res["per_window"]), np.asarray(res["window_start_s"]),
+                           2.0, common=np.median(sigma, axis=0))
+    np.testing.assert_allclose(res["sigma"], want, rtol=1e-4)
 
 
 

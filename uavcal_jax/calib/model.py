@@ -79,7 +79,8 @@ from uavcal_jax.data.color import LUMA_WEIGHTS
 from uavcal_jax.geometry import so3
 
 __all__ = ["GRAY_WEIGHTS", "MOTION_KEYS", "NORMALIZATION", "NORMALIZATION_NAMES", "Calibrator",
-           "compose_intervals", "patchify", "rotation_residuals", "split_prediction"]
+           "compose_intervals", "patchify", "rotation_residuals", "split_prediction",
+           "without_correction"]
 
 F32 = jnp.float32
 
@@ -416,6 +417,15 @@ def split_prediction(out: jax.Array, config: ModelConfig
         return out, None
     c = config.imu_channels
     return out[..., :c], out[..., c:]
+
+
+def without_correction(params: dict) -> dict:
+    """``params`` with the offset head's weights and bias at zero (any leading seed axis):
+    a standardised model then predicts its closed form alone (``ModelConfig.closed_form``),
+    the learned part switched off on the same windows (the credit-assignment rows)."""
+    npb = dict(params["noise_predictor"])
+    npb["head"] = jax.tree.map(jnp.zeros_like, npb["head"])
+    return {**params, "noise_predictor": npb}
 
 
 def _window_mean(imu: jax.Array, mask: jax.Array) -> jax.Array:

@@ -42,7 +42,8 @@ from uavcal_jax.calib.predict import expand_to_six
 from uavcal_jax.data.windows import WindowConfig
 from uavcal_jax.errors import DataError
 
-__all__ = ["DATA_FILE", "LS_CONFIGS", "TRIAL_FORMAT", "Trial", "least_squares_trial", "mean_std",
+__all__ = ["DATA_FILE", "LS_CONFIGS", "TRIAL_FORMAT", "Trial", "bootstrap_interval",
+           "least_squares_trial", "mean_std",
            "mean_std_of", "run_trials", "spread", "trial_dir", "trial_dirs", "trial_folders",
            "trial_sides", "validation_trials", "validation_windows", "write_trial_data"]
 
@@ -180,6 +181,23 @@ def mean_std_of(rows: Sequence[Mapping], keys: Iterable[str]) -> dict[str, dict 
     """:func:`mean_std` over ``rows`` (one per trial) of each of ``keys`` (a missing key
     counts as no value)."""
     return {k: mean_std([r.get(k) for r in rows]) for k in keys}
+
+
+def bootstrap_interval(values: Iterable[float | None], *, level: float = 0.95,
+                       resamples: int = 10_000, seed: int = 0) -> dict | None:
+    """The mean of the finite ``values`` (one per trial: a paired difference, a metric) with
+    its percentile bootstrap interval over trials (Efron and Tibshirani 1993, ch. 13):
+    ``{"mean", "low", "high", "n", "level"}``; ``None`` without a value. With one value the
+    interval is that value (no spread to resample)."""
+    vals = np.array([float(v) for v in values if v is not None and np.isfinite(v)])
+    if vals.size == 0:
+        return None
+    rng = np.random.default_rng(seed)
+    means = vals[rng.integers(0, vals.size, size=(resamples, vals.size))].mean(axis=1)
+    tail = 100.0 * (1.0 - level) / 2.0
+    low, high = np.percentile(means, [tail, 100.0 - tail])
+    return {"mean": float(vals.mean()), "low": float(low), "high": float(high),
+            "n": int(vals.size), "level": level}
 
 
 #: Least squares on the injected streams: the paper protocol's gyro offsets reach ~1 rad/s,

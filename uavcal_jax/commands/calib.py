@@ -57,9 +57,13 @@ Estimate the constant offset in a recording's IMU (what to subtract: gyro rad/s,
 m/s^2 on a 40 s simulated flight, the shipped transformer's up to 0.03 and 0.11) runs the
 stereo VIO and takes the median of its bias states over the tracked frames of the last two
 thirds of the flight; --method transformer cuts the recording into a trained calibrator's
-windows and takes the median of its per-window estimates (a run trained with model.variance, as
-the shipped weights are, also gives `sigma`, its predicted error's standard deviation per
-window, median over windows). No method sees the ground truth. Each is scored afterwards
+windows and takes the median of its per-window estimates; --method auto runs several methods
+(--set methods=vio-bias,visual-ls,transformer, the default) and fuses them per channel by
+inverse variance, skipping one that fails. Every method gives `sigma`, the standard deviation
+of its estimate's error, its items' correlation over the flight accounted for (a transformer
+only when trained with model.variance, as the shipped weights are); a channel the recording
+does not determine (a flight that hardly turns, for the accelerometer across gravity) shows a
+large one. No method sees the ground truth. Each is scored afterwards
 against its label: vio-bias estimates the total constant error (the offsets known to be in the
 IMU plus the sensor's own bias, the mean of the ground truth's bias columns), a transformer
 what its run was trained on (injection.label). The offsets are known when the recording is a
@@ -76,6 +80,7 @@ examples:
   uavcal calib predict --sequence sims/V1_01 --set tail_fraction=0.5 vio.solver.max_iterations=4
   uavcal calib predict --method transformer --checkpoint runs/cal --sequence data/V1_01 \\
       --inject 0.02,0,0,0.1,0,0
+  uavcal calib predict --method auto --sequence sims/V1_01 --json
   uavcal vio --sequence sims/V1_01 --out traj.txt --offsets offsets.json"""
 
 
@@ -426,8 +431,13 @@ def run_predict(args) -> int:
         return 0
     rows = {"estimate (median)": estimate.median,
             f"{estimate.item} spread": np.asarray(summary["per_window_std"])}
-    if summary.get("sigma") is not None:  # a model with an uncertainty (model.variance)
-        rows["predicted sigma"] = np.asarray(summary["sigma"])
+    if summary.get("sigma") is not None:  # null: a channel the method did not determine
+        rows["sigma"] = np.array([np.inf if v is None else v for v in summary["sigma"]])
+    for name, part in summary.get("methods", {}).items():  # auto: what it fused
+        if "offset" in part:
+            rows[name] = np.array([part["offset"][part["channels"].index(c)]
+                                   if c in part["channels"] else np.nan
+                                   for c in estimate.channels])
     if true is not None:
         rows.update({f"true ({summary['label']})": true, "error": np.asarray(summary["error"])})
     print(_headline(summary))
