@@ -42,7 +42,7 @@ def test_a_later_field_off_keeps_the_tag_and_the_realistic_defaults_change_it():
     later = ("imu_rotation_deg", "vignetting", "auto_exposure", "ae_target_dn",
              "ae_time_constant_s", "line_delay_s", "imu_vibration", "imu_scale",
              "imu_misalignment", "imu_g_sensitivity", "imu_time_offset",
-             "imu_rest_vibration")
+             "imu_rest_vibration", "rotor_drag", "thrust_tilt_deg")
     fields = {k: v for k, v in ideal.to_dict().items()
               if k not in ("png_workers", "batch_size", *later)}
     before = hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:8]
@@ -52,6 +52,8 @@ def test_a_later_field_off_keeps_the_tag_and_the_realistic_defaults_change_it():
     assert config_tag(turned) != before
     assert config_tag(dataclasses.replace(ideal, vignetting=1.1)) != before
     assert config_tag(dataclasses.replace(ideal, imu_vibration=1.0)) != before
+    assert config_tag(dataclasses.replace(ideal, rotor_drag=0.4)) != before
+    assert config_tag(dataclasses.replace(ideal, thrust_tilt_deg=(1.0, 0.0))) != before
     # the spectrum at rest changes a recorded flight's tag, never a planned flight's (where it
     # has no effect): the procedural caches stay valid
     planned = dataclasses.replace(TINY, imu_rest_vibration=False)
@@ -82,3 +84,26 @@ def test_trajectory_sets_cover_each_trajectory(family):
     assert all(cfg.duration == 5.0 for _, cfg in capped)
     with pytest.raises(ValueError, match="unknown"):
         sequence_configs(SimSetConfig(family=family, sequences=("nope",)), SHARED_DATA)
+
+
+def test_realistic_airframes_are_drawn_per_flight_and_ideal_ones_stay_as_they_were():
+    """``airframes="realistic"``: each procedural flight draws its rotor drag, thrust tilt
+    and IMU mounting tilt from its seed (the same on every call, within the ranges); the ideal
+    set's flights keep their configuration (and so their cached folders)."""
+    from uavcal_jax.sim.training_sets import REALISTIC_AIRFRAME
+
+    real = sequence_configs(SimSetConfig(family="procedural", count=6, max_duration=5,
+                                         airframes="realistic"))
+    again = sequence_configs(SimSetConfig(family="procedural", count=6, max_duration=5,
+                                          airframes="realistic"))
+    assert real == again
+    lo, hi = REALISTIC_AIRFRAME["rotor_drag"]
+    assert all(lo <= c.rotor_drag <= hi for _, c in real)
+    assert len({c.rotor_drag for _, c in real}) == 6
+    assert all(max(map(abs, c.thrust_tilt_deg)) < 5.0 and len(c.imu_rotation_deg) == 3
+               for _, c in real)
+    ideal = sequence_configs(SimSetConfig(family="procedural", count=6, max_duration=5))
+    assert all(c.rotor_drag == 0.0 and c.thrust_tilt_deg is None and c.imu_rotation_deg is None
+               for _, c in ideal)
+    with pytest.raises(ValueError, match="airframes"):
+        SimSetConfig(family="procedural", airframes="bent")

@@ -314,3 +314,31 @@ def test_fit_bridges_a_gap():
     assert np.abs(fit.acceleration(t) - traj.acceleration(t)).max() < 0.1
     far = np.abs(t - t_ns[mid] * 1e-9) > 2.0
     assert np.abs(fit.position(t[far]) - traj.position(t[far])).max() < 1e-4
+
+
+def test_quadrotor_attitude_balances_rotor_drag_and_a_tilted_thrust_axis():
+    """What the accelerometer reads, ``R^T (a + g e_z)``: along body z alone for the ideal
+    airframe; ``-d v_B`` on body x and y with rotor drag d (Faessler et al. 2018); the tilted
+    thrust axis's direction times the thrust with a thrust tilt."""
+    from uavcal_jax.geometry.frames import GRAVITY
+    from uavcal_jax.sim.flights import quadrotor_attitude
+
+    rng = np.random.default_rng(0)
+    n = 50
+    accel = rng.normal(0.0, 1.0, (n, 3))
+    velocity = rng.normal(0.0, 2.0, (n, 3))
+    yaw = rng.uniform(-np.pi, np.pi, n)
+    need = accel + np.array([0.0, 0.0, GRAVITY])
+
+    def reads(R):
+        return np.einsum("nji,nj->ni", R, need)
+
+    ideal = reads(quadrotor_attitude(accel, velocity, yaw))
+    np.testing.assert_allclose(ideal[:, :2], 0.0, atol=1e-9)
+    R = quadrotor_attitude(accel, velocity, yaw, rotor_drag=0.5)
+    v_body = np.einsum("nji,nj->ni", R, velocity)
+    np.testing.assert_allclose(reads(R)[:, :2], -0.5 * v_body[:, :2], atol=1e-9)
+    tilted = reads(quadrotor_attitude(accel, velocity, yaw, thrust_tilt_deg=(1.0, -2.0)))
+    axis = tilted / np.linalg.norm(tilted, axis=1, keepdims=True)
+    want = Rotation.from_euler("xy", np.radians([1.0, -2.0])).as_matrix()[:, 2]
+    np.testing.assert_allclose(axis, np.broadcast_to(want, axis.shape), atol=1e-9)

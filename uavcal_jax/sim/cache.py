@@ -29,6 +29,7 @@ __all__ = ["cached_simulation", "config_tag", "trajectory_span"]
 #: options' defaults are now on, so a default configuration tags differently from an old one.
 _LATER_FIELDS = {"imu_rotation_deg": None, "ae_target_dn": ae.AE_TARGET_DN,
                  "ae_time_constant_s": ae.AE_TIME_CONSTANT_S, "imu_rest_vibration": False,
+                 "rotor_drag": 0.0, "thrust_tilt_deg": None,
                  **IDEAL_SENSORS}
 
 

@@ -143,6 +143,14 @@ class SimConfig:
             ground truth's orientations and the cameras' ``T_BS`` are expressed in the turned
             frame. Other drones hold their IMU in other orientations (gravity on z rather than
             EuRoC's x): this makes such a recording from any flight.
+        rotor_drag: a procedural flight's rotor drag coefficient per unit mass, 1/s
+            (:class:`uavcal_jax.sim.flights.FlightConfig`): the thrust axis tilts to
+            balance it and the accelerometer reads ``-d v`` in the rotor plane. 0: the
+            thrust exactly along ``a + g e_z``. Ignored for a trajectory file (its
+            orientations are given).
+        thrust_tilt_deg: ``None``, or a procedural flight's thrust axis tilted in the body
+            frame about body x then y, degrees (the body leans to carry the thrust on it).
+            Ignored for a trajectory file.
         resolution: ``(width, height)`` of the frames; other than EuRoC's 752x480, the EuRoC
             intrinsics are scaled to keep the field of view.
         color: ``"gray"`` (8-bit single channel, like EuRoC) or ``"rgb"``.
@@ -228,6 +236,8 @@ class SimConfig:
     body_frame: str = BODY_FRAMES[0]
     camera_pitch_deg: float | None = None
     imu_rotation_deg: tuple[float, float, float] | None = None
+    rotor_drag: float = 0.0
+    thrust_tilt_deg: tuple[float, float] | None = None
     resolution: tuple[int, int] = EUROC_RESOLUTION
     color: str = COLORS[0]
     seed: int = 0
@@ -270,6 +280,9 @@ class SimConfig:
         if self.imu_rotation_deg is not None:
             object.__setattr__(self, "imu_rotation_deg",
                                tuple(float(v) for v in self.imu_rotation_deg))
+        if self.thrust_tilt_deg is not None:
+            object.__setattr__(self, "thrust_tilt_deg",
+                               tuple(float(v) for v in self.thrust_tilt_deg))
         if self.imu_offset is not None:
             # a tuple of floats whatever sequence was given (hashable, JSON-ready, and equal
             # to the parsed command-line value); the count is checked by validate()
@@ -324,6 +337,13 @@ class SimConfig:
                 len(self.imu_offset) == 6 and np.all(np.isfinite(self.imu_offset))):
             raise ValueError("imu_offset must be 6 finite numbers (gyro rad/s xyz, accel m/s^2 "
                              f"xyz), got {self.imu_offset}")
+        if not (np.isfinite(self.rotor_drag) and 0.0 <= self.rotor_drag <= 5.0):
+            raise ValueError(f"rotor_drag must be in [0, 5] 1/s, got {self.rotor_drag}")
+        if self.thrust_tilt_deg is not None and not (
+                len(self.thrust_tilt_deg) == 2
+                and np.all(np.abs(self.thrust_tilt_deg) <= 30.0)):
+            raise ValueError("thrust_tilt_deg must be 2 angles within +-30 degrees, got "
+                             f"{self.thrust_tilt_deg}")
         if self.imu_rotation_deg is not None and not (
                 len(self.imu_rotation_deg) == 3 and np.all(np.isfinite(self.imu_rotation_deg))):
             raise ValueError("imu_rotation_deg must be 3 finite numbers (a rotation vector, "

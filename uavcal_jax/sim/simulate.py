@@ -94,7 +94,7 @@ from uavcal_jax.sim.config import (
     imu_rotation,
     stage_seeds,
 )
-from uavcal_jax.sim.flights import procedural_flight
+from uavcal_jax.sim.flights import FlightConfig, procedural_flight
 from uavcal_jax.sim.frames import render_frames
 from uavcal_jax.sim.imu_vibration import EUROC_V101_REST_VIBRATION, EUROC_V101_VIBRATION
 from uavcal_jax.sim.trajectory import Trajectory
@@ -162,7 +162,9 @@ def load_flight(config: SimConfig, seeds: dict[str, int]
     if config.trajectory is None:
         # Procedural flights have a quadrotor body frame (z up); the IMU is mounted as on
         # EuRoC's MAV, so EuRoC's camera extrinsics look forward.
-        traj = mount_imu(procedural_flight(seeds["flight"], config.duration),
+        airframe = FlightConfig(rotor_drag=config.rotor_drag,
+                                thrust_tilt_deg=config.thrust_tilt_deg or (0.0, 0.0))
+        traj = mount_imu(procedural_flight(seeds["flight"], config.duration, airframe),
                          euroc_imu_mounting())
         t0_ns = int(np.ceil(traj.t_start * 1e9 - 1e-3))
         info: dict[str, Any] = {"source": "procedural", "seed": seeds["flight"]}

@@ -25,6 +25,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from uavcal_jax.progress import progress as progress_bar
 from uavcal_jax.sim.cache import cached_simulation, trajectory_span
@@ -54,6 +57,11 @@ class SimSetConfig:
         resolution: render size.
         color: ``"gray"`` or ``"rgb"`` (the RGB path).
         seed: base seed (sequence ``i`` uses ``seed + i``).
+        airframes: procedural flights' airframes: ``"ideal"`` (the thrust exactly along
+            ``a + g e_z``, the IMU square on the body: the accelerometer's x and y read the
+            offset alone) or ``"realistic"`` (each flight draws, from its seed, the airframe
+            a real multirotor is: :data:`REALISTIC_AIRFRAME`'s rotor drag, thrust-axis tilt
+            and IMU mounting tilt).
     """
 
     family: str = "euroc"
@@ -63,10 +71,36 @@ class SimSetConfig:
     resolution: tuple[int, int] = LOW_RESOLUTION
     color: str = "gray"
     seed: int = 0
+    airframes: str = "ideal"
 
     def __post_init__(self) -> None:
         if self.family not in FAMILIES:
             raise ValueError(f"family must be one of {FAMILIES}, got {self.family!r}")
+        if self.airframes not in AIRFRAMES:
+            raise ValueError(f"airframes must be one of {AIRFRAMES}, got {self.airframes!r}")
+
+
+#: :attr:`SimSetConfig.airframes`.
+AIRFRAMES = ("ideal", "realistic")
+#: The ranges a realistic airframe is drawn from: rotor drag uniform in this range, 1/s
+#: (0.3-0.6 measured on small quadrotors, Faessler et al. 2018 and Svacha et al. 2017), and
+#: the thrust axis's tilt in the body and the IMU's mounting tilt on the airframe each
+#: normal per axis with this standard deviation, degrees (a frame's asymmetry and a board's
+#: mounting: a degree or so).
+REALISTIC_AIRFRAME = {"rotor_drag": (0.2, 0.6), "thrust_tilt_std_deg": 1.0,
+                      "imu_tilt_std_deg": 1.0}
+
+
+def realistic_airframe(seed: int) -> dict[str, Any]:
+    """:class:`~uavcal_jax.sim.config.SimConfig` fields of an airframe drawn from ``seed``
+    (:data:`REALISTIC_AIRFRAME`)."""
+    rng = np.random.default_rng([seed, 0xA1F])
+    r = REALISTIC_AIRFRAME
+    thrust = rng.normal(0.0, r["thrust_tilt_std_deg"], 2)
+    imu = rng.normal(0.0, r["imu_tilt_std_deg"], 3)
+    return {"rotor_drag": round(float(rng.uniform(*r["rotor_drag"])), 4),
+            "thrust_tilt_deg": tuple(round(float(v), 4) for v in thrust),
+            "imu_rotation_deg": tuple(round(float(v), 4) for v in imu)}
 
 
 def sequence_configs(config: SimSetConfig, data_root: str | Path | None = None
@@ -83,8 +117,10 @@ def sequence_configs(config: SimSetConfig, data_root: str | Path | None = None
     if config.family == "procedural":
         duration = 30.0 if config.max_duration is None else config.max_duration
         for i in range(config.count):
+            airframe = (realistic_airframe(config.seed + i)
+                        if config.airframes == "realistic" else {})
             out.append((f"proc_{i:02d}", SimConfig(duration=duration, seed=config.seed + i,
-                                                   **base)))
+                                                   **base, **airframe)))
     else:
         if data_root is None:
             raise ValueError(f"the {config.family} set needs data_root (the folder holding "
