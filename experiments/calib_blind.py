@@ -56,8 +56,10 @@ from uavcal_jax.sim.config import SimConfig
 #: trains on procedural flights) and of the tests.
 DEFAULT_FLIGHTS = ("MH_04_difficult", "V1_03_difficult", "V2_02_medium")
 MICRO = SHARED_DATA / "euroc_v101_micro"
-#: The trajectory folders ``--flights`` names are looked up in, in order.
-TRAJECTORY_SETS = ("euroc", "uzh_fpv")
+#: The trajectory folders ``--flights`` names are looked up in, in order, with their files'
+#: body frame (``SimConfig.body_frame``): UZH-FPV's is a quadrotor's (x forward, z up), on
+#: which EuRoC's IMU is mounted as on EuRoC's MAV.
+TRAJECTORY_SETS = {"euroc": "euroc", "uzh_fpv": "flu"}
 
 
 def physical_offsets(n: int, seed: int) -> np.ndarray:
@@ -67,12 +69,13 @@ def physical_offsets(n: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).uniform(-bound, bound, size=(n, 6))
 
 
-def trajectory_file(name: str) -> Path:
-    """The TUM file of trajectory ``name`` among :data:`TRAJECTORY_SETS`."""
-    for folder in TRAJECTORY_SETS:
+def trajectory_file(name: str) -> tuple[Path, str]:
+    """The TUM file of trajectory ``name`` among :data:`TRAJECTORY_SETS`, and its body
+    frame."""
+    for folder, body_frame in TRAJECTORY_SETS.items():
         path = SHARED_DATA / "trajectories" / folder / f"{name}.txt"
         if path.is_file():
-            return path
+            return path, body_frame
     raise SystemExit(f"no trajectory {name!r} in {SHARED_DATA / 'trajectories'} "
                      f"({', '.join(TRAJECTORY_SETS)})")
 
@@ -100,9 +103,10 @@ def simulated_flights(args) -> list[Path]:
     offsets = physical_offsets(len(args.flights), args.seed)
     out = []
     for name, offset in zip(args.flights, offsets, strict=True):
-        path = trajectory_file(name)
+        path, body_frame = trajectory_file(name)
         start, duration = clipped_span(path, args.start, args.duration)
         config = SimConfig(trajectory=str(path), start=start, duration=duration, seed=args.seed,
+                           body_frame=body_frame,
                            imu_offset=tuple(float(v) for v in offset), targets=False,
                            imu_rotation_deg=args.imu_rotation)
         out.append(cached_simulation(config, args.cache, name, progress=not args.quiet))
@@ -143,6 +147,30 @@ def _fmt(v) -> str:
     return "" if v is None else f"{v:.4f}"
 
 
+def auto_against_best(pooled: dict) -> dict[str, dict]:
+    """Per channel ``auto`` estimates: its RMS error beside the best single method's (by RMS
+    error over the same recordings; ``auto`` and :data:`NO_CORRECTION` left out)."""
+    if "auto" not in pooled:
+        return {}
+    out = {}
+    for channel, value in pooled["auto"]["rmse"].items():
+        singles = {m: s["rmse"][channel] for m, s in pooled.items()
+                   if m not in ("auto", NO_CORRECTION) and channel in s["rmse"]}
+        if singles:
+            best = min(singles, key=singles.get)
+            out[channel] = {"auto": value, "best": best, "best_rmse": singles[best]}
+    return out
+
+
+def _auto_lines(pooled: dict) -> list[str]:
+    versus = auto_against_best(pooled)
+    if not versus:
+        return []
+    return ["", "`auto` per channel against the best single method (RMS error): " + "; ".join(
+        f"{c} {v['auto']:.4f} vs {v['best']} {v['best_rmse']:.4f}" for c, v in versus.items())
+        + "."]
+
+
 def _table(pooled: dict, hybrid_rows: list[dict], args) -> str:
     mount = ("" if args.imu_rotation is None else
              f"; IMU turned by {','.join(f'{v:g}' for v in args.imu_rotation)} deg")
@@ -157,6 +185,7 @@ def _table(pooled: dict, hybrid_rows: list[dict], args) -> str:
             f"; z-scores' RMS gyro {s['gyro_z_rms']:.2f}, accel {s['accel_z_rms']:.2f}")
         lines.append(f"| {method} | {_fmt(s['gyro_rmse'])} | {_fmt(s['accel_rmse'])} | "
                      f"{s['sign_f1']:.3f} | {axes}{z} |")
+    lines += _auto_lines(pooled)
     if hybrid_rows:
         lines += ["", f"## Hybrid V1_01 (real IMU, {args.hybrid_duration:g} s): error against "
                   "the real sensor's bias (EuRoC ground-truth estimate)", "",

@@ -78,7 +78,7 @@ from uavcal_jax.calib.trials import (
     validation_trials,
     write_trial_data,
 )
-from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
+from uavcal_jax.pipeline.motion_inputs import folder_sources
 from uavcal_jax.pipeline.offset_scores import score_recordings
 from uavcal_jax.xla_cache import enable_compilation_cache, release_if_crowded
 
@@ -300,7 +300,7 @@ def run(args) -> None:
                     continue
                 if parts is None:
                     parts = [p for f in folders for p in load_windows(
-                        [f], window, rotation_source=visual_rotation_source)]
+                        [f], window, **folder_sources(window))]
                 train, val = validation_trials(parts, loop)[i]
                 log(args.quiet, f"{name}/{protocol}/trial {i}: held out "
                                 f"{[Path(p.source).name for p in val]}")

@@ -2,7 +2,9 @@
 predict --method transformer`` without ``--checkpoint``).
 
 Recipe: ``--flights`` seeded procedural flights of ``--duration`` s at the demo's resolution
-(:data:`uavcal_jax.sim.config.LOW_RESOLUTION`), rendered once into ``--cache``
+(:data:`uavcal_jax.sim.config.LOW_RESOLUTION`), each with a real multirotor's airframe
+(``--airframes realistic``: rotor drag, thrust-axis tilt, IMU mounting tilt), rendered once
+into ``--cache``
 (:mod:`uavcal_jax.sim.training_sets`); trained on them (what ``uavcal calib train`` runs) with
 the ``shipped`` preset (:data:`uavcal_jax.calib.presets.PRESETS`: ``small``'s 160x96 frames in
 32x32 patches, d 64, pre-norm, AdamW 1e-3, with the physical injection protocol -- offsets in
@@ -36,9 +38,9 @@ from uavcal_jax.calib.data import load_windows
 from uavcal_jax.calib.loop import export_weights, fit
 from uavcal_jax.calib.presets import PRESETS, resolve_configs
 from uavcal_jax.calib.pretrained import DEFAULT_WEIGHTS
-from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
+from uavcal_jax.pipeline.motion_inputs import folder_sources
 from uavcal_jax.sim.config import LOW_RESOLUTION
-from uavcal_jax.sim.training_sets import SimSetConfig, simulated_set
+from uavcal_jax.sim.training_sets import AIRFRAMES, SimSetConfig, simulated_set
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The shipped model's preset (``uavcal calib train --preset shipped``).
@@ -66,25 +68,31 @@ def main() -> None:
                     help="override the preset (e.g. the IMU-only reference of calib_blind.py: "
                          "model.use_video=false model.motion_tokens=false "
                          "model.closed_form=none window.rotations=none)")
+    ap.add_argument("--airframes", choices=AIRFRAMES, default="realistic",
+                    help="the procedural flights' airframes (SimSetConfig.airframes): "
+                         "'realistic' draws each flight's rotor drag, thrust-axis tilt and IMU "
+                         "mounting tilt; 'ideal' flies the thrust exactly along a + g "
+                         "[default: %(default)s]")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args()
     t0 = time.perf_counter()
     folders = simulated_set(SimSetConfig(family="procedural", count=args.flights,
                                          max_duration=args.duration,
-                                         resolution=LOW_RESOLUTION, seed=FLIGHT_SEED),
+                                         resolution=LOW_RESOLUTION, seed=FLIGHT_SEED,
+                                         airframes=args.airframes),
                             args.cache, progress=not args.quiet)
     t_sim = time.perf_counter() - t0
     run = resolve_configs(args.set, preset=PRESET, epochs=args.epochs)
     config, loop, window = run.calib, run.loop, run.window
     # whole flights held out (overlapping windows of one flight share frames: a split over
     # windows would validate on frames it trained on)
-    parts = load_windows(folders, window, rotation_source=visual_rotation_source)
+    parts = load_windows(folders, window, **folder_sources(window))
     n_val = max(1, round(loop.val_fraction * len(parts)))
     train, val = parts[:-n_val], parts[-n_val:]
     shutil.rmtree(args.run, ignore_errors=True)
     inputs = {"action": "experiments/calib_default_weights.py", "preset": PRESET,
               "flights": args.flights, "duration": args.duration, "flight_seed": FLIGHT_SEED,
-              "set": args.set}
+              "airframes": args.airframes, "set": args.set}
     res = fit(config, train, val, args.run, loop=loop, progress=not args.quiet,
               inputs=inputs).summary
     best = res["best"]
@@ -98,7 +106,8 @@ def main() -> None:
                "window_mean_offset_rmse": best.get("window_mean_offset_rmse"),
                "simulate_s": round(t_sim, 1), "wall_s": round(time.perf_counter() - t0, 1),
                "command": "python experiments/calib_default_weights.py " + " ".join(
-                   f"--{k} {getattr(args, k)}" for k in ("flights", "duration", "epochs"))
+                   f"--{k} {getattr(args, k)}" for k in ("flights", "duration", "epochs",
+                                                         "airframes"))
                + (" --set " + " ".join(args.set) if args.set else "")}
     if args.install:
         target = export_weights(args.run, DEFAULT_WEIGHTS, train)

@@ -121,7 +121,7 @@ from uavcal_jax.calib.trials import (
     write_trial_data,
 )
 from uavcal_jax.data.euroc import read_euroc
-from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
+from uavcal_jax.pipeline.motion_inputs import folder_sources
 from uavcal_jax.pipeline.offset_scores import NO_CORRECTION, pooled_scores, score_recordings
 from uavcal_jax.plots import plot_offsets
 from uavcal_jax.xla_cache import enable_compilation_cache
@@ -268,8 +268,7 @@ def _load(args, experiments: list[str], window) -> tuple[dict, dict, dict, dict]
         seq_name.update({str(Path(f).absolute()): n for n, f in zip(names, folders, strict=True)})
         for f in folders:
             if f not in loaded:
-                (loaded[f],) = load_windows([f], window, rotation_source=(
-                    visual_rotation_source if window.rotations == "visual" else None))
+                (loaded[f],) = load_windows([f], window, **folder_sources(window))
         exp_parts[name] = [loaded[f] for f in folders]
     return exp_parts, seq_name, skipped, loaded
 

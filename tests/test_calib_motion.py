@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from uavcal_jax.calib.config import CalibConfig, ModelConfig
+from uavcal_jax.calib.config import CalibConfig, CalibRunConfig, ModelConfig
 from uavcal_jax.calib.data import Windows, gather, load_windows
 from uavcal_jax.calib.inject import imu_statistics
 from uavcal_jax.calib.loss import tilt_loss
@@ -29,6 +29,7 @@ from uavcal_jax.data.sequence import (
     Sequence,
 )
 from uavcal_jax.data.windows import (
+    ALIGNMENT_KEYS,
     WindowConfig,
     chain_orientations,
     interval_mean_imu,
@@ -446,3 +447,33 @@ def test_tilt_head_needs_ground_truth(turn):
     blind = dataclasses.replace(ws, frame_up=None)
     with pytest.raises(DataError, match="ground truth"):
         gather([Windows(blind, np.arange(len(ws)), "turn")], np.arange(1), TILT.model, "gyro")
+
+
+def test_rotation_alignment_starts_the_accelerometer_at_the_windows_metric_start(parallel):
+    """``closed_form=rotation_alignment``: the untrained model's gyro is the rotation least
+    squares, its accelerometer each window's metric start moved by the injected offset
+    through the window's response (what the alignment of the injected IMU gives), in the
+    training steps and in ``calib predict``'s path alike."""
+    parts, batch = parallel
+    ws = parts[0].windows
+    rng = np.random.default_rng(3)
+    n = len(ws)
+    fields = {"accel_start": rng.normal(0.0, 0.1, (n, 3)),
+              "accel_response": np.stack([np.diag(rng.uniform(0.2, 1.0, 3)) for _ in range(n)]),
+              "accel_start_std": rng.uniform(0.01, 0.1, (n, 3))}
+    aligned = dataclasses.replace(ws, **fields)
+    config = apply_overrides(CONFIG, ["model.closed_form=rotation_alignment"])
+    parts = [Windows(aligned, np.arange(n), "turn")]
+    batch = gather(parts, np.arange(n), config.model, "gyro")
+    assert set(ALIGNMENT_KEYS) <= set(batch)
+    state = create_train_state(config, jax.random.key(0), batch)
+    offset = np.concatenate([-0.04 * AXIS, [0.1, -0.1, 0.05]]).astype(np.float32)
+    pred = np.asarray(eval_step(state, {**batch, "offset": np.tile(offset, (n, 1))})["pred"])
+    np.testing.assert_allclose(pred[:, :3], np.broadcast_to((0.03 - 0.04) * AXIS, (n, 3)),
+                               atol=1e-4)
+    want = fields["accel_start"] + fields["accel_response"] @ offset[3:]
+    np.testing.assert_allclose(pred[:, 3:], want, atol=1e-5)
+    seq_pred = predict_sequence(state, aligned, inject_offset=offset)
+    np.testing.assert_allclose(seq_pred.per_window, pred, atol=1e-5)
+    with pytest.raises(ValueError, match="accel_start=alignment"):
+        CalibRunConfig(model=config.model)

@@ -100,3 +100,20 @@ def test_auto_options_refuse_an_unknown_method_and_take_the_transformers_checkpo
     options = configure(["methods=vio-bias,visual-ls"], checkpoint="/runs/x", kind="last")
     assert options.methods == ("vio-bias", "visual-ls")
     assert options.transformer.checkpoint == "/runs/x" and options.transformer.kind == "last"
+
+
+def test_uavcal_run_takes_auto_with_the_other_methods_options():
+    """``uavcal run --set offset.method=auto``: the fused methods are ``offset.auto.methods``,
+    each with its own ``offset.<method>.*`` options and the run's one VIO setting."""
+    from uavcal_jax.config import apply_overrides
+    from uavcal_jax.pipeline.run_config import RunConfig
+    from uavcal_jax.vio.config import VioConfig
+
+    config = apply_overrides(RunConfig(), ["offset.method=auto",
+                                           "offset.auto.methods=vio-bias,visual-ls",
+                                           "offset.vio_bias.tail_fraction=0.5"])
+    vio = VioConfig(keyframes=7)
+    options = config.offset.options(vio)
+    assert isinstance(options, AutoOptions)
+    assert options.methods == ("vio-bias", "visual-ls")
+    assert options.vio_bias.tail_fraction == 0.5 and options.vio_bias.vio == vio

@@ -59,9 +59,10 @@ ACTIVATIONS = ("relu", "gelu")
 FRAME_TOKENS = ("learned", "first_patch")
 FRAME_ENCODER_DTYPES = ("float32", "bfloat16")
 #: Closed-form estimates the head can start from (``model.closed_form``).
-CLOSED_FORMS = ("none", "window_mean", "rotation_ls", "rotation_window_mean")
+CLOSED_FORMS = ("none", "window_mean", "rotation_ls", "rotation_window_mean",
+                "rotation_alignment")
 #: The closed forms that solve the gyro from the rotation residuals (need motion tokens).
-ROTATION_CLOSED_FORMS = ("rotation_ls", "rotation_window_mean")
+ROTATION_CLOSED_FORMS = ("rotation_ls", "rotation_window_mean", "rotation_alignment")
 SIGN_TERMS = ("sign", "tanh")
 LOSS_UNITS = ("si", "standardized")
 #: Offset-injection protocols (``injection.protocol``).
@@ -138,7 +139,11 @@ class ModelConfig:
             ``motion_tokens`` and ``standardize``) or ``"rotation_window_mean"`` (the gyro
             as ``rotation_ls``, the other channels as ``window_mean``: the paper protocol's
             strong no-learning estimate on the accelerometer, whose offsets are drawn around
-            the IMU's mean, with the camera's on the gyro).
+            the IMU's mean, with the camera's on the gyro) or ``"rotation_alignment"`` (the
+            gyro as ``rotation_ls``, the accelerometer from the window's visual-inertial
+            alignment of the stereo VIO's metric poses, ``window.accel_start=alignment``:
+            the metric start, whose standard deviation the model also reads; needs a
+            6-channel model).
         motion_tokens: add one rotation-residual token per frame interval to the fused
             sequence (summed with ``T_v + T_i``, as eq. 10 sums those): ``r_k = Log(dR_gyro^T
             dR_cam) / dt`` (rad/s, body frame), ``dR_gyro`` the interval's full-rate gyro
@@ -221,6 +226,9 @@ class ModelConfig:
         if self.closed_form != "none" and not self.standardize:
             raise ValueError(f"closed_form={self.closed_form!r} needs standardize (the "
                              "training statistics it subtracts)")
+        if self.closed_form == "rotation_alignment" and self.imu_channels != 6:
+            raise ValueError("closed_form='rotation_alignment' starts the accelerometer: it "
+                             "needs imu_channels=6")
         if self.closed_form in ROTATION_CLOSED_FORMS and not self.motion_tokens:
             raise ValueError(f"closed_form={self.closed_form!r} needs motion_tokens (the "
                              "rotation residuals it solves from)")
@@ -427,14 +435,20 @@ class CalibConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
 
     def __post_init__(self) -> None:
-        check_sections(self.injection, self.train)
+        check_sections(self.injection, self.train, self.model)
 
 
-def check_sections(injection: InjectionConfig, train: TrainConfig) -> None:
-    """Refuse sections that do not combine: random mountings under the paper protocol."""
+def check_sections(injection: InjectionConfig, train: TrainConfig,
+                   model: ModelConfig | None = None) -> None:
+    """Refuse sections that do not combine: random mountings under the paper protocol or
+    with the metric accelerometer start (solved in the recorded mounting)."""
     if train.mounting == "random" and injection.protocol == "paper":
         raise ValueError("train.mounting=random does not combine with injection.protocol="
                          "paper (its offsets are drawn around the recorded mounting's mean)")
+    if (train.mounting == "random" and model is not None
+            and model.closed_form == "rotation_alignment"):
+        raise ValueError("train.mounting=random does not combine with model.closed_form="
+                         "rotation_alignment (its start is solved in the recorded mounting)")
 
 
 @dataclass(frozen=True)
@@ -451,7 +465,11 @@ class CalibRunConfig:
     window: WindowConfig = field(default_factory=WindowConfig)
 
     def __post_init__(self) -> None:
-        check_sections(self.injection, self.train)
+        check_sections(self.injection, self.train, self.model)
+        if (self.model.closed_form == "rotation_alignment"
+                and self.window.accel_start != "alignment"):
+            raise ValueError("model.closed_form=rotation_alignment needs windows with the "
+                             "metric start: window.accel_start=alignment")
 
     @property
     def calib(self) -> CalibConfig:

@@ -99,22 +99,28 @@ def mask_black_frames(ws: WindowSet, where: str | Path) -> WindowSet:
 
 
 def load_windows(dirs: Sequence[str | Path], config: WindowConfig,
-                 rotation_source: Callable[[Path], Any] | None = None) -> list[Windows]:
+                 rotation_source: Callable[[Path], Any] | None = None,
+                 pose_source: Callable[[Path], Any] | None = None) -> list[Windows]:
     """Every window of every sequence found under ``dirs`` (:func:`find_sequences`).
 
     ``rotation_source``: under ``config.rotations == "visual"``, a callable ``(folder) ->``
     the recording's relative camera rotations (a ``VisualRotations``-like tuple, see
-    :func:`~uavcal_jax.data.windows.make_windows`), e.g.
-    :func:`uavcal_jax.pipeline.motion_inputs.visual_rotation_source`; the caller supplies it
-    (calib does not import the VIO)."""
+    :func:`~uavcal_jax.data.windows.make_windows`); ``pose_source``: under
+    ``config.accel_start == "alignment"``, ``(folder) ->`` its VIO trajectory. The caller
+    supplies them (calib does not import the VIO):
+    :func:`uavcal_jax.pipeline.motion_inputs.folder_sources`."""
     if config.rotations == "visual" and rotation_source is None:
         raise DataError("window.rotations=visual needs a source of the camera's relative "
                         "rotations (load_windows' rotation_source)")
+    if config.accel_start == "alignment" and pose_source is None:
+        raise DataError("window.accel_start=alignment needs a source of the VIO's poses "
+                        "(load_windows' pose_source)")
     out = []
     for root in find_sequences(dirs):
         visual = rotation_source(Path(root)) if config.rotations == "visual" else None
-        ws = mask_black_frames(make_windows(read_euroc(root), config,
-                                            visual_rotations=visual), root)
+        poses = pose_source(Path(root)) if config.accel_start == "alignment" else None
+        ws = mask_black_frames(make_windows(read_euroc(root), config, visual_rotations=visual,
+                                            vio_poses=poses), root)
         out.append(Windows(ws, np.arange(len(ws)), str(Path(root).absolute())))
     return out
 

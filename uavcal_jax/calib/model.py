@@ -78,9 +78,9 @@ from uavcal_jax.calib.layers import ACTIVATION_FNS, LINEAR_INIT, Decoder, Encode
 from uavcal_jax.data.color import LUMA_WEIGHTS
 from uavcal_jax.geometry import so3
 
-__all__ = ["GRAY_WEIGHTS", "MOTION_KEYS", "NORMALIZATION", "NORMALIZATION_NAMES", "Calibrator",
-           "compose_intervals", "patchify", "rotation_residuals", "split_prediction",
-           "without_correction"]
+__all__ = ["ALIGNMENT_INPUTS", "GRAY_WEIGHTS", "MOTION_KEYS", "NORMALIZATION",
+           "NORMALIZATION_NAMES", "Calibrator", "compose_intervals", "patchify",
+           "rotation_residuals", "split_prediction", "without_correction"]
 
 F32 = jnp.float32
 
@@ -96,6 +96,11 @@ NORMALIZATION_NAMES = ("imu_mean", "imu_std", "offset_mean", "offset_std")
 
 #: The batch entries of the motion inputs (:meth:`uavcal_jax.data.windows.WindowSet.motion`).
 MOTION_KEYS = ("gyro_seq", "dt_seq", "rot_cam", "rot_mask")
+#: Those of the metric accelerometer start (``closed_form="rotation_alignment"``; the same
+#: names as :data:`uavcal_jax.data.windows.ALIGNMENT_KEYS`): ``accel_start (B, 3)`` and its
+#: ``accel_start_std (B, 3)``, m/s^2 (``accel_response`` stays with the batch: the trainer
+#: moves the start with an injected offset).
+ALIGNMENT_INPUTS = ("accel_start", "accel_start_std")
 
 
 def compose_intervals(gyro_seq: jax.Array, dt_seq: jax.Array) -> jax.Array:
@@ -255,6 +260,20 @@ class MotionTokens(nn.Module):
         return x * valid[..., None].astype(F32)
 
 
+class AlignmentToken(nn.Module):
+    """The metric start as one token summed into every fused slot: ``Dense`` of the start and
+    the log of its standard deviation, both in offset units (``(B, 6)`` -> ``(B, 1, d)``), so
+    the head knows how far the window's alignment can be trusted."""
+
+    config: ModelConfig
+
+    @nn.compact
+    def __call__(self, z):
+        x = nn.Dense(self.config.d_model, dtype=F32, param_dtype=F32, kernel_init=LINEAR_INIT,
+                     name="linear")(z.astype(F32))
+        return x[:, None, :]
+
+
 class NoisePredictor(nn.Module):
     """NPB (eq. 10-11): ``T_v + T_i (B, n, d)`` -> offsets ``(B, C)`` (with ``variance``
     ``(B, 2C)``: then the uncertainty head's output)."""
@@ -308,6 +327,8 @@ class Calibrator(nn.Module):
         self.imu_reducer = ImuReducer(c)
         if c.motion_tokens:
             self.motion_tokens = MotionTokens(c)
+        if c.closed_form == "rotation_alignment":
+            self.alignment_token = AlignmentToken(c)
         self.noise_predictor = NoisePredictor(c)
         if c.standardize:
             fills = (jnp.zeros, jnp.ones, jnp.zeros, jnp.ones)
@@ -360,11 +381,22 @@ class Calibrator(nn.Module):
             m, s = (jnp.zeros(3, F32), jnp.ones(3, F32)) if norm is None else (
                 norm["offset_mean"][:3], norm["offset_std"][:3])
             tokens = tokens + self.motion_tokens((-r - m) / s, valid)
+        start = None
+        if c.closed_form == "rotation_alignment":
+            if any(k not in motion for k in ALIGNMENT_INPUTS):
+                raise ValueError(f"closed_form='rotation_alignment' needs {ALIGNMENT_INPUTS} "
+                                 "(windows cut with window.accel_start=alignment)")
+            start = jnp.asarray(motion["accel_start"], F32)
+            unit = norm["offset_std"][3:]
+            tokens = tokens + self.alignment_token(jnp.concatenate(
+                [(start - norm["offset_mean"][3:]) / unit,
+                 jnp.log(jnp.asarray(motion["accel_start_std"], F32) / unit)], axis=-1))
         out = self.noise_predictor(tokens, mask, deterministic=deterministic)
         if c.standardize:
             channels = c.imu_channels
             unit = norm["offset_std"] * self._correction_unit(channels)
-            offsets = self._closed_form(raw, mask, norm, residual) + unit * out[..., :channels]
+            offsets = (self._closed_form(raw, mask, norm, residual, start)
+                       + unit * out[..., :channels])
             if not c.variance:
                 return offsets
             return jnp.concatenate([offsets, jnp.log(unit) + out[..., channels:]], axis=-1)
@@ -375,21 +407,25 @@ class Calibrator(nn.Module):
         ``correction_scale`` on the channels the closed form estimates, 1 elsewhere."""
         c = self.config
         covered = {"none": 0, "window_mean": channels, "rotation_ls": 3,
-                   "rotation_window_mean": channels}[c.closed_form]
+                   "rotation_window_mean": channels, "rotation_alignment": channels}[c.closed_form]
         return jnp.where(jnp.arange(channels) < covered, c.correction_scale, 1.0).astype(F32)
 
-    def _closed_form(self, imu, mask, norm, residual=None) -> jax.Array:
+    def _closed_form(self, imu, mask, norm, residual=None, accel_start=None) -> jax.Array:
         """``(B, C)`` the estimate the standardised head corrects (``closed_form``): the
         mean offset, each window's mean sample (real slots) minus the training mean, or
         (``rotation_ls``, ``rotation_window_mean``) the gyro error that best explains the
         rotation residuals, ``argmin_e sum_k |dt_k r_k + dt_k e|^2 = -sum(dt_k^2 r_k) /
-        sum(dt_k^2)``, with the mean offset (``rotation_ls``) or the window mean on the other
-        channels and on a window without a valid interval."""
+        sum(dt_k^2)``, with the mean offset (``rotation_ls``), the window mean
+        (``rotation_window_mean``) or the window's metric ``accel_start`` (``(B, 3)``,
+        ``rotation_alignment``) on the other channels, and the mean offset on the gyro of a
+        window without a valid interval."""
         form = self.config.closed_form
         if form in ROTATION_CLOSED_FORMS:
-            base = (_window_mean(imu, mask) - norm["imu_mean"]
-                    if form == "rotation_window_mean" else
-                    jnp.broadcast_to(norm["offset_mean"], imu.shape[:-2] + imu.shape[-1:]))
+            base = jnp.broadcast_to(norm["offset_mean"], imu.shape[:-2] + imu.shape[-1:])
+            if form == "rotation_window_mean":
+                base = _window_mean(imu, mask) - norm["imu_mean"]
+            elif form == "rotation_alignment":
+                base = jnp.concatenate([base[..., :3], accel_start], axis=-1)
             r, dt = residual
             w = jnp.square(dt)[..., None]
             total = jnp.sum(w, axis=-2)

@@ -30,7 +30,7 @@ from uavcal_jax.calib.inference import encode_frames, predict_windows
 from uavcal_jax.calib.inject import inject
 from uavcal_jax.calib.loop import first_seed, read_run_config, restore_run
 from uavcal_jax.calib.model import split_prediction
-from uavcal_jax.calib.train import CalibState
+from uavcal_jax.calib.train import CalibState, shifted_accel_start
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.data.windows import WindowSet, make_windows
 from uavcal_jax.errors import DataError
@@ -138,8 +138,12 @@ def predict_sequence(state: CalibState, windows: WindowSet, seeds: int = 1,
     if model_cfg.motion_tokens:
         motion = windows.motion(all_idx)
         if inject_offset is not None:  # the same gyro offset in every full-rate sample
-            shift = np.asarray(inject_offset, np.float32).reshape(-1)[:3]
-            motion["gyro_seq"] = motion["gyro_seq"] + shift
+            offset = np.asarray(inject_offset, np.float32).reshape(-1)
+            motion["gyro_seq"] = motion["gyro_seq"] + offset[:3]
+            if "accel_start" in motion and offset.size == 6:  # the alignment moves with it
+                motion["accel_start"] = np.asarray(shifted_accel_start(
+                    motion["accel_start"], motion["accel_response"],
+                    np.broadcast_to(offset, (len(all_idx), 6))))
     per_seed, per_seed_log_sigma = [], []
     for s in _seed_states(state, seeds):
         tokens = None if frames is None else encode_frames(s.model, s.variables(), frames)
@@ -177,7 +181,8 @@ def mounting_angle_deg(accel: np.ndarray, training_mean: np.ndarray) -> float:
 
 def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = "best",
                         run: CalibRunConfig | None = None, inject_offset=None,
-                        rotation_source: Callable[[Sequence], Any] | None = None
+                        rotation_source: Callable[[Sequence], Any] | None = None,
+                        pose_source: Callable[[Sequence], Any] | None = None
                         ) -> tuple[dict, SequencePrediction]:
     """``(info, prediction)`` of the run folder's ``kind`` checkpoint on ``sequence``, cut into
     the run's windows (black frames masked, as in training). Reads nothing of the recording
@@ -191,7 +196,9 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     ``rotation_source``: for a run with ``window.rotations=visual``, ``rotation_source(
     sequence)`` the camera's relative rotations of the sequence
     (:func:`uavcal_jax.pipeline.motion_inputs.sequence_rotations`: calib may not import the
-    VIO); ``window.rotations=oracle`` reads the sequence's ground truth.
+    VIO); ``window.rotations=oracle`` reads the sequence's ground truth. ``pose_source``: for
+    a run with ``window.accel_start=alignment``, ``pose_source(sequence)`` its VIO trajectory
+    (:func:`uavcal_jax.pipeline.motion_inputs.sequence_poses`).
     ``info`` (JSON-ready): ``run``, ``kind``, ``seeds``, ``sensor``, ``channels``,
     ``frame_encoder_dtype``, ``window_s``, ``stride_s``, ``windows``.
 
@@ -209,7 +216,14 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
             raise DataError("window.rotations=visual needs the recording's visual rotations "
                             "(predict_on_sequence's rotation_source)", where)
         visual = rotation_source(sequence)
-    ws = mask_black_frames(make_windows(sequence, window, visual_rotations=visual), where)
+    poses = None
+    if window.accel_start == "alignment":
+        if pose_source is None:
+            raise DataError("window.accel_start=alignment needs the recording's VIO poses "
+                            "(predict_on_sequence's pose_source)", where)
+        poses = pose_source(sequence)
+    ws = mask_black_frames(make_windows(sequence, window, visual_rotations=visual,
+                                        vio_poses=poses), where)
     part = Windows(ws, np.arange(len(ws)), str(where))
     state, seeds = restore_run(run_dir, [part], kind=kind, run=run)
     pick = model_channels(run.model.imu_channels, sensor)

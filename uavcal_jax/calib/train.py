@@ -46,7 +46,13 @@ from uavcal_jax.calib.inject import (
 )
 from uavcal_jax.calib.loss import calibration_loss, gaussian_nll, tilt_loss
 from uavcal_jax.calib.metrics import metric_sums
-from uavcal_jax.calib.model import MOTION_KEYS, NORMALIZATION, Calibrator, split_prediction
+from uavcal_jax.calib.model import (
+    ALIGNMENT_INPUTS,
+    MOTION_KEYS,
+    NORMALIZATION,
+    Calibrator,
+    split_prediction,
+)
 from uavcal_jax.calib.mounting import isotropic_statistics, random_mountings, remount
 
 __all__ = [
@@ -140,10 +146,24 @@ def _motion(config: CalibConfig, batch: dict, offsets: jax.Array | None) -> dict
         raise ValueError("model.motion_tokens reads the gyro: a 3-channel model needs "
                          "injection.single_sensor=gyro")
     motion = {k: batch[k] for k in MOTION_KEYS}
+    if config.model.closed_form == "rotation_alignment":
+        motion.update({k: batch[k] for k in ALIGNMENT_INPUTS})
     if offsets is not None:
         gyro = jnp.asarray(motion["gyro_seq"], jnp.float32)
         motion["gyro_seq"] = gyro + jnp.asarray(offsets, jnp.float32)[:, None, None, :3]
+        if "accel_start" in motion:  # the alignment of the injected IMU (linear in it)
+            motion["accel_start"] = shifted_accel_start(
+                motion["accel_start"], batch["accel_response"], offsets)
     return motion
+
+
+def shifted_accel_start(start, response, offsets):
+    """``start (B, 3) + response (B, 3, 3) @ offsets[:, 3:]``: a window's metric accelerometer
+    start as the alignment of its IMU with the constant ``offsets (B, 6)`` added
+    (:mod:`uavcal_jax.data.window_alignment`)."""
+    return (jnp.asarray(start, jnp.float32)
+            + jnp.einsum("bij,bj->bi", jnp.asarray(response, jnp.float32),
+                         jnp.asarray(offsets, jnp.float32)[:, 3:6]))
 
 
 def _init(config: CalibConfig, key: jax.Array, sample: dict, stats: ImuStats) -> CalibState:

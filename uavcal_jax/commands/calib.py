@@ -262,13 +262,11 @@ def _aggregate(rows: list[dict]) -> dict:
     return {k: v for k, v in mean_std_of(rows, HEADLINE).items() if v is not None}
 
 
-def _rotation_source(window):
-    """The camera rotations' source ``load_windows`` needs under ``window.rotations=visual``
-    (the VIO front end's, cached beside each recording), else ``None``."""
-    if window.rotations != "visual":
-        return None
-    from uavcal_jax.pipeline.motion_inputs import visual_rotation_source
-    return visual_rotation_source
+def _sources(window) -> dict:
+    """The motion sources ``load_windows`` needs for ``window`` (the VIO front end's camera
+    rotations, its poses: cached beside each recording)."""
+    from uavcal_jax.pipeline.motion_inputs import folder_sources
+    return folder_sources(window)
 
 
 def run_train(args) -> int:
@@ -278,7 +276,7 @@ def run_train(args) -> int:
 
     run = train_configs(args)
     enable_compilation_cache()
-    parts = load_windows(args.data, run.window, _rotation_source(run.window))
+    parts = load_windows(args.data, run.window, **_sources(run.window))
     out = Path(args.out)
     results = run_trials(run.calib, run.loop, validation_trials(parts, run.loop), out,
                          resume=args.resume, progress=not args.json,
@@ -325,7 +323,7 @@ def run_eval(args) -> int:
     for run_dir in trial_dirs(args.run):
         run = resolve_configs(args.set, preset=read_run_config(run_dir),
                               arguments={"loop.val_offsets": args.offsets})
-        parts = (load_windows(args.data, run.window, _rotation_source(run.window))
+        parts = (load_windows(args.data, run.window, **_sources(run.window))
                  if args.data
                  else validation_windows(run_dir, run.window, cache))
         if not parts:

@@ -61,6 +61,7 @@ import numpy as np
 from uavcal_jax.data.sequence import FrameStream, Sequence
 from uavcal_jax.data.timing import measured_rate_hz
 from uavcal_jax.data.true_offset import sensor_bias
+from uavcal_jax.data.window_alignment import window_accel_starts
 from uavcal_jax.data.window_motion import (
     chain_orientations,
     interval_mean_imu,
@@ -68,10 +69,15 @@ from uavcal_jax.data.window_motion import (
     oracle_orientations,
 )
 from uavcal_jax.errors import DataError
+from uavcal_jax.imu.noise import EUROC_ADIS16448
 
-#: ``WindowConfig.rotations`` values and ``WindowConfig.imu_sampling`` values.
+#: ``WindowConfig.rotations``, ``WindowConfig.imu_sampling`` and ``WindowConfig.accel_start``
+#: values.
 ROTATION_SOURCES = ("none", "oracle", "visual")
 IMU_SAMPLINGS = ("nearest", "interval_mean")
+ACCEL_STARTS = ("none", "alignment")
+#: The window-level arrays of ``accel_start="alignment"`` (:meth:`WindowSet.motion` adds them).
+ALIGNMENT_KEYS = ("accel_start", "accel_response", "accel_start_std")
 
 
 @dataclass(frozen=True)
@@ -93,6 +99,11 @@ class WindowConfig:
             :func:`make_windows`).
         imu_sampling: ``"nearest"`` (the paper: the IMU sample nearest each frame) or
             ``"interval_mean"`` (the mean of the samples since the previous frame slot).
+        accel_start: ``"none"`` or ``"alignment"``: each window's accelerometer bias from a
+            visual-inertial alignment of the recording's VIO trajectory around it
+            (:mod:`uavcal_jax.data.window_alignment`; :func:`make_windows`' ``vio_poses``).
+        alignment_span: seconds of that alignment, centred on the window (``None``: the
+            window's own ``duration``).
     """
 
     duration: float = 10.0
@@ -106,8 +117,15 @@ class WindowConfig:
     workers: int | None = None
     rotations: str = "none"
     imu_sampling: str = "nearest"
+    accel_start: str = "none"
+    alignment_span: float | None = None
 
     def __post_init__(self) -> None:
+        if self.alignment_span is not None and not self.alignment_span > 0:
+            raise ValueError(f"alignment_span must be > 0 s, got {self.alignment_span}")
+        if self.accel_start not in ACCEL_STARTS:
+            raise ValueError(f"accel_start must be one of {ACCEL_STARTS}, "
+                             f"got {self.accel_start!r}")
         if self.rotations not in ROTATION_SOURCES:
             raise ValueError(f"rotations must be one of {ROTATION_SOURCES}, "
                              f"got {self.rotations!r}")
@@ -211,6 +229,10 @@ class WindowSet:
             body frame at each used frame, from the ground truth's orientation (zero for a
             frame outside its span); ``None`` without ground truth. The label of the
             calibrator's tilt head (``ModelConfig.tilt_head``).
+        accel_start, accel_response, accel_start_std: ``(n_windows, 3)``, ``(n_windows, 3,
+            3)``, ``(n_windows, 3)`` float64, each window's metric accelerometer start
+            (:class:`~uavcal_jax.data.window_alignment.WindowAlignment`) under
+            ``config.accel_start="alignment"``; ``None`` otherwise.
     """
 
     config: WindowConfig
@@ -231,6 +253,9 @@ class WindowSet:
     frame_R: np.ndarray | None = None
     frame_R_segment: np.ndarray | None = None
     frame_up: np.ndarray | None = None
+    accel_start: np.ndarray | None = None
+    accel_response: np.ndarray | None = None
+    accel_start_std: np.ndarray | None = None
 
     @property
     def frame_R_valid(self) -> np.ndarray | None:
@@ -283,11 +308,15 @@ class WindowSet:
         """The windows ``indices`` (any integer array, in its order) as a WindowSet of their
         own; ``frames`` and the IMU arrays are shared, not copied."""
         idx = np.asarray(indices, np.int64)
-        bias = None if self.sensor_bias is None else self.sensor_bias[idx]
+
+        def rows(a):
+            return None if a is None else a[idx]
+
         return dataclasses.replace(self, start_ns=self.start_ns[idx],
                                    frame_index=self.frame_index[idx],
                                    frame_mask=self.frame_mask[idx], imu_range=self.imu_range[idx],
-                                   sensor_bias=bias)
+                                   sensor_bias=rows(self.sensor_bias),
+                                   **{k: rows(getattr(self, k)) for k in ALIGNMENT_KEYS})
 
     @property
     def interval_cap(self) -> int:
@@ -312,9 +341,15 @@ class WindowSet:
             0 on padding); ``rot_cam (B, T, 3, 3)`` float32, the body rotation of the
             interval (body frame at ``t_{k-1}`` from ``t_k``: ``frame_R[i].T @
             frame_R[j]``; identity where invalid); ``rot_mask (B, T)`` bool, both slots real,
-            both orientations of one segment and at most ``S`` samples.
+            both orientations of one segment and at most ``S`` samples. With
+            ``accel_start="alignment"`` also :data:`ALIGNMENT_KEYS` (float32, per window).
         """
-        return interval_motion(self, indices, cap)
+        out = interval_motion(self, indices, cap)
+        if self.accel_start is not None:
+            indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+            out.update({k: getattr(self, k)[indices].astype(np.float32)
+                        for k in ALIGNMENT_KEYS})
+        return out
 
     def up(self, indices) -> np.ndarray:
         """``(B, T, 3)`` float32 :attr:`frame_up` at the slots of windows ``indices``, zero
@@ -365,7 +400,8 @@ def window_starts(t_lo: int, t_hi: int, duration_ns: int, stride_ns: int,
 
 
 def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
-                 frames: np.ndarray | None = None, visual_rotations=None) -> WindowSet:
+                 frames: np.ndarray | None = None, visual_rotations=None,
+                 vio_poses=None) -> WindowSet:
     """Cut ``sequence`` into windows (see the module docstring).
 
     Args:
@@ -374,6 +410,8 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
         visual_rotations: under ``config.rotations == "visual"``, the camera's relative body
             rotations (a ``VisualRotations``-like tuple with ``t0_ns``, ``t1_ns`` (K,),
             ``R`` (K, 3, 3) body frame at ``t0`` from ``t1``, ``valid`` (K,)).
+        vio_poses: under ``config.accel_start == "alignment"``, the recording's VIO
+            trajectory (a :class:`~uavcal_jax.vio.pose_cache.VioPoses`-like tuple).
 
     Raises:
         DataError: no IMU, no such camera, or the sequence is shorter than one window.
@@ -460,6 +498,18 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
         # Chain along every frame of the stream (a used frame's predecessor may be unused).
         all_R, all_seg = chain_orientations(t_cam, visual_rotations)
         frame_R, frame_seg = all_R[used], all_seg[used]
+    alignment = {}
+    if config.accel_start == "alignment":
+        if vio_poses is None:
+            raise DataError("accel_start='alignment' needs the recording's VIO trajectory "
+                            "(make_windows' vio_poses)", where)
+        noise = (sequence.imu_calibration.noise if sequence.imu_calibration is not None
+                 else EUROC_ADIS16448)
+        span_ns = (None if config.alignment_span is None
+                   else int(round(config.alignment_span * 1e9)))
+        found = window_accel_starts(vio_poses, imu.t_ns, imu.gyro, imu.accel, starts,
+                                    duration_ns, span_ns, noise)
+        alignment = dict(zip(ALIGNMENT_KEYS, found, strict=True))
     return WindowSet(
         config=config, name=sequence.name, frames=frame_arr, frame_t_ns=frame_t,
         imu_index=imu_index, imu_t_ns=imu.t_ns, gyro=imu.gyro, accel=imu.accel,
@@ -469,4 +519,5 @@ def make_windows(sequence: Sequence, config: WindowConfig = WindowConfig(), *,
         meta={"camera": config.camera, "rate_hz": rate, "frames_per_window": T,
               "frame_step": config.frame_step},
         frame_imu=frame_imu, frame_R=frame_R, frame_R_segment=frame_seg, frame_up=frame_up,
+        **alignment,
     )

@@ -33,7 +33,7 @@ from uavcal_jax.calib.pretrained import default_weights
 from uavcal_jax.calib.trials import TRIAL_FORMAT, trial_folders
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.errors import DataError, OutOfDomainWarning
-from uavcal_jax.pipeline.motion_inputs import sequence_rotations
+from uavcal_jax.pipeline.motion_inputs import sequence_poses, sequence_rotations, sequence_sources
 from uavcal_jax.pipeline.offset_estimate import (
     SIX_CHANNELS,
     OffsetEstimate,
@@ -173,7 +173,7 @@ def estimate(sequence: Sequence, options: TransformerOptions, *,
                         "bound for tables, not an estimate without ground truth",
                         options.run_dir)
     info, prediction = predict_on_sequence(options.run_dir, sequence, kind=options.kind,
-                                           run=run, rotation_source=sequence_rotations)
+                                           run=run, **sequence_sources(run.window))
     angle = info.get("gravity_angle_deg")
     if angle is not None and angle > MOUNTING_TOLERANCE_DEG:
         info, prediction = _predict_remounted(sequence, options, info, prediction)
@@ -240,9 +240,15 @@ def _predict_remounted(sequence: Sequence, options: TransformerOptions, info: di
         visual = sequence_rotations(recording)
         return visual._replace(R=R @ visual.R @ R.T)
 
+    def turned_poses(recording):  # the VIO runs on the recording as it is, then turns
+        poses = sequence_poses(sequence)
+        return poses._replace(rotation=poses.rotation @ R.T, bias_gyro=poses.bias_gyro @ R.T)
+
+    sources = sequence_sources(options.run.window)
+    turned_sources = {"rotation_source": sources["rotation_source"] and turned_rotations,
+                      "pose_source": sources["pose_source"] and turned_poses}
     info, turned = predict_on_sequence(options.run_dir, dataclasses.replace(sequence, imu=imu),
-                                       kind=options.kind, run=options.run,
-                                       rotation_source=turned_rotations)
+                                       kind=options.kind, run=options.run, **turned_sources)
     back = R.T  # the estimate is in the turned frame
     channels = list(turned.channels)
     sigma = turned.per_window_sigma

@@ -12,17 +12,13 @@ settings (:func:`cache_path`). :func:`read_cache` reads a folder's cache without
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
-import os
-import tempfile
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from uavcal_jax.data.sequence import Sequence
 from uavcal_jax.vio.config import FrontendConfig
+from uavcal_jax.vio.npz_cache import settings_tag, write_npz_atomic
 from uavcal_jax.vio.visual_rotation import (
     MIN_PARALLAX_PX,
     MIN_TRACKS,
@@ -39,10 +35,9 @@ _CACHE_PREFIX = "visual_rotations"
 
 def _cache_tag(frontend: FrontendConfig, every: int, min_tracks: int, min_parallax_px: float,
                camera: str) -> str:
-    fields = {"version": _CACHE_VERSION, "camera": camera, "every": every,
-              "min_tracks": min_tracks, "min_parallax_px": min_parallax_px,
-              "frontend": dataclasses.asdict(frontend)}
-    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:8]
+    return settings_tag({"version": _CACHE_VERSION, "camera": camera, "every": every,
+                         "min_tracks": min_tracks, "min_parallax_px": min_parallax_px,
+                         "frontend": dataclasses.asdict(frontend)})
 
 
 def cache_path(folder: str | Path, frontend: FrontendConfig | None = None, *, every: int = 1,
@@ -86,16 +81,6 @@ def cached_relative_rotations(sequence: Sequence, frontend: FrontendConfig | Non
     rot = relative_rotations(sequence, frontend, progress=progress, **settings)
     if folder is None or not Path(folder).is_dir():
         return rot
-    path = cache_path(folder, frontend, **settings)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **rot._asdict())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as e:
-        warnings.warn(f"{path}: visual rotations not cached ({e})", stacklevel=2)
+    write_npz_atomic(cache_path(folder, frontend, **settings), rot._asdict(),
+                     "visual rotations")
     return rot
