@@ -117,3 +117,45 @@ def test_uavcal_run_takes_auto_with_the_other_methods_options():
     assert isinstance(options, AutoOptions)
     assert options.methods == ("vio-bias", "visual-ls")
     assert options.vio_bias.tail_fraction == 0.5 and options.vio_bias.vio == vio
+
+
+def test_an_estimates_sigma_becomes_the_vios_bias_prior_within_bounds():
+    from uavcal_jax.pipeline.bias_prior import MIN_SIGMA, prior_from_estimate
+    from uavcal_jax.vio.config import InitialPrior
+
+    est = _estimate(SIX_CHANNELS, np.zeros(6), [1e-3, 2e-3, 2e-3, 0.02, 0.02, 5.0])
+    prior = prior_from_estimate(est)
+    assert prior.bias_gyro == pytest.approx(np.sqrt((1e-6 + 4e-6 + 4e-6) / 3))
+    assert prior.bias_accel == InitialPrior().bias_accel  # never looser than the default
+    tight = prior_from_estimate(_estimate(SIX_CHANNELS, np.zeros(6), [1e-9] * 6))
+    assert (tight.bias_gyro, tight.bias_accel) == MIN_SIGMA
+    gyro_only = prior_from_estimate(_estimate(SIX_CHANNELS[:3], np.zeros(3), [1e-3] * 3))
+    assert gyro_only.bias_accel == InitialPrior().bias_accel and gyro_only.bias_gyro == 1e-3
+    with pytest.raises(ValueError, match="sigma"):
+        prior_from_estimate(OffsetEstimate(
+            offset=np.zeros(6), channels=SIX_CHANNELS, median=np.zeros(6),
+            per_item=np.zeros((1, 6)), item_t_s=np.zeros(1), item="window", span_ns=(0, 1),
+            label="total", settings=None))
+
+
+def test_frame_dropout_blinds_the_span_only_and_drops_the_folder():
+    from uavcal_jax.data.frame_dropout import with_frame_dropout
+    from uavcal_jax.data.sequence import CameraCalibration, FrameStream, ImuData, Sequence
+
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 256, (20, 48, 64), dtype=np.uint8)
+    t = (np.arange(20) * 50_000_000).astype(np.int64)
+    cal = CameraCalibration(np.array([50.0, 50, 32, 24]), np.zeros(4), (64, 48), 20.0,
+                            np.eye(4))
+    streams = {c: FrameStream(c, t, (), cal, lambda i, color: images[i]) for c in ("cam0", "cam1")}
+    seq = Sequence("s", None, streams, ImuData(t, np.zeros((20, 3)), np.zeros((20, 3))), None,
+                   None)
+    black = with_frame_dropout(seq, 0.2, 0.25)  # frames 4-8
+    blinded = [k for k in range(20) if not black.camera("cam1").load(k).any()]
+    assert blinded == [4, 5, 6, 7, 8] and black.root is None
+    np.testing.assert_array_equal(black.camera("cam0").load(9), images[9])
+    blur = with_frame_dropout(seq, 0.2, 0.25, "blur").camera("cam0").load(5)
+    assert np.abs(np.diff(blur.astype(float), axis=1)).mean() < 0.1 * np.abs(
+        np.diff(images[5].astype(float), axis=1)).mean()
+    with pytest.raises(ValueError, match="kind"):
+        with_frame_dropout(seq, 0.0, 1.0, "smoke")

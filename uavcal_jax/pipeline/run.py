@@ -41,6 +41,7 @@ from uavcal_jax.data.sim_config import recorded_imu_offset
 from uavcal_jax.detect.predict import ImageDetections
 from uavcal_jax.errors import DataError
 from uavcal_jax.pipeline import vio_bias
+from uavcal_jax.pipeline.bias_prior import prior_from_estimate
 from uavcal_jax.pipeline.detectors import Detector, load_network_detector
 from uavcal_jax.pipeline.offset_estimate import SIX_CHANNELS, OffsetEstimate
 from uavcal_jax.pipeline.predict_offset import predict_offset, score, without_ground_truth
@@ -300,6 +301,9 @@ def run_pipeline(recording: str | Path, out_dir: str | Path, config: RunConfig |
     detector = _checked_detector(detector, config)
     localizer = build_localizer(sequence, config)
     offset = _offset_before_vio(sequence, config, offsets, offsets_from, progress)
+    if offset is not None and config.offset.prior and offset["estimate"].sigma is not None:
+        prior = prior_from_estimate(offset["estimate"], config.vio.prior)
+        config = dataclasses.replace(config, vio=dataclasses.replace(config.vio, prior=prior))
     t0 = time.perf_counter()
     vio, detections, detect_ms, detected_frames = _vio_and_detect(
         sequence, config, None if offset is None else offset["estimate"].offset, detector,

@@ -218,6 +218,10 @@ class OffsetStageConfig:
             (the calibrator's run folder, checkpoint kind, frame encoder dtype).
         auto: :class:`~uavcal_jax.pipeline.auto_offset.AutoSettings` (the methods fused; each
             with its options above).
+        prior: with an offset removed before the VIO (a method other than ``vio-bias``),
+            its sigma also becomes the VIO's prior on the biases
+            (:func:`uavcal_jax.pipeline.bias_prior.prior_from_estimate`): what carries the
+            VIO through a visual dropout.
     """
 
     method: str = DEFAULT_METHOD
@@ -226,6 +230,7 @@ class OffsetStageConfig:
     self_calib: SelfCalibOptions = SelfCalibOptions()
     transformer: TransformerSettings = TransformerSettings()
     auto: AutoSettings = AutoSettings()
+    prior: bool = False
 
     def __post_init__(self):
         if self.method not in (*method_names(), NO_OFFSET):
