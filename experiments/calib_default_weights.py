@@ -73,6 +73,9 @@ def main() -> None:
                          "'realistic' draws each flight's rotor drag, thrust-axis tilt and IMU "
                          "mounting tilt; 'ideal' flies the thrust exactly along a + g "
                          "[default: %(default)s]")
+    ap.add_argument("--closed-form-only", type=Path, default=None, metavar="DIR",
+                    help="also export the trained run with its learned correction switched off "
+                         "(the head's weights zeroed: the closed form alone) to DIR")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args()
     t0 = time.perf_counter()
@@ -109,6 +112,9 @@ def main() -> None:
                    f"--{k} {getattr(args, k)}" for k in ("flights", "duration", "epochs",
                                                          "airframes"))
                + (" --set " + " ".join(args.set) if args.set else "")}
+    if args.closed_form_only is not None:  # the credit-assignment twin: no learned part
+        summary["closed_form_only"] = str(export_weights(args.run, args.closed_form_only,
+                                                         train, closed_form_only=True))
     if args.install:
         target = export_weights(args.run, DEFAULT_WEIGHTS, train)
         summary.update(installed=str(target), installed_bytes=_size_bytes(target))

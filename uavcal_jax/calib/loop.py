@@ -49,6 +49,7 @@ from uavcal_jax.calib.data import (
 )
 from uavcal_jax.calib.inject import ImuStats, training_offsets, validation_offsets
 from uavcal_jax.calib.metrics import calibration_metrics, metrics_from_sums
+from uavcal_jax.calib.model import without_correction
 from uavcal_jax.calib.train import (
     CalibState,
     create_train_state,
@@ -310,15 +311,20 @@ def restore_run(run_dir: str | Path, parts: list[Windows], kind: str = "best",
 
 
 def export_weights(run_dir: str | Path, target: str | Path, parts: list[Windows],
-                   kind: str = "best") -> Path:
+                   kind: str = "best", *, closed_form_only: bool = False) -> Path:
     """Write ``target``: a run folder holding ``run_dir``'s ``config.json`` and its ``kind``
     checkpoint only, with the optimiser's moments zeroed (they compress to nothing; a
     model to predict with needs only parameters, batch statistics and the IMU statistics).
     It restores like any run (:func:`restore_run`, ``kind``) but does not resume training.
-    Written into a temporary sibling and renamed, so ``target`` is whole or absent."""
+    ``closed_form_only``: the offset head's weights zeroed too
+    (:func:`~uavcal_jax.calib.model.without_correction`): the model's closed form alone, the
+    learned part switched off (its uncertainty head kept). Written into a temporary sibling
+    and renamed, so ``target`` is whole or absent."""
     run_dir = Path(run_dir)
     tree, meta, _ = _restore(run_dir, parts, kind)
     state = tree["state"]
+    if closed_form_only:
+        state = state.replace(params=without_correction(state.params))
     tree["state"] = state.replace(opt_state=jax.tree.map(jnp.zeros_like, state.opt_state))
 
     def fill(folder: Path) -> None:
