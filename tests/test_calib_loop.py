@@ -171,3 +171,24 @@ def test_validation_protocols_partition_the_windows(windows):
         (["b"], ["a"]), (["a"], ["b"])]
     with pytest.raises(DataError):
         leave_one_out([a])
+
+
+def test_exported_weights_restore_as_trained_and_the_closed_form_export_zeroes_the_head(
+        windows, full_run, tmp_path):
+    """``export_weights``: the best checkpoint's parameters, restorable as a run; with
+    ``closed_form_only`` the offset head's weights are zero (everything else as trained)."""
+    from uavcal_jax.calib.loop import export_weights
+
+    run_dir, _ = full_run
+    train, _ = windows
+    state, _ = restore_run(run_dir, train)
+    plain, _ = restore_run(export_weights(run_dir, tmp_path / "plain", train), train)
+    closed, _ = restore_run(export_weights(run_dir, tmp_path / "closed", train,
+                                           closed_form_only=True), train)
+    for a, b in zip(_leaves(state.params), _leaves(plain.params), strict=True):
+        np.testing.assert_array_equal(a, b)
+    head = closed.params["noise_predictor"]["head"]
+    assert all(not np.any(np.asarray(v)) for v in jax.tree.leaves(head))
+    assert np.any(np.asarray(state.params["noise_predictor"]["head"]["kernel"]))
+    np.testing.assert_array_equal(np.asarray(closed.params["noise_predictor"]["query"]),
+                                  np.asarray(state.params["noise_predictor"]["query"]))
