@@ -97,7 +97,7 @@ VARIANTS = {
 #: Every method of the table, in its order, with its label.
 METHODS = {"closed_form": "closed form alone (no parameters)",
            "learned": "learned correction, closed form off",
-           "both": "closed form + learned correction (shipped design)",
+           "both": "closed form + learned correction",
            "pixel": "pixel path (video + IMU, the paper's)",
            "imu_only": "IMU-only transformer",
            "window_mean": "window mean (no learning)",

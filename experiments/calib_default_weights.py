@@ -17,9 +17,14 @@ flights held out for validation, early stopping on the validation loss; then the
 :func:`uavcal_jax.calib.loop.export_weights`) go to
 :data:`uavcal_jax.calib.pretrained.DEFAULT_WEIGHTS` (with ``--install``).
 
+The shipped weights are the trained run with its learned correction switched off
+(``--closed-form-only DIR``; :mod:`uavcal_jax.calib.pretrained` says why), their uncertainty
+scale measured after (``calib_uncertainty.py --write-run``).
+
 Usage::
 
-    python experiments/calib_default_weights.py --install          # about 20 min, 2 cores
+    python experiments/calib_default_weights.py --closed-form-only uavcal_jax/calib/weights/demo
+    python experiments/calib_default_weights.py --install          # the run as trained
     python experiments/calib_default_weights.py --flights 4 --epochs 2   # a smoke run
 
 Prints the training summary and, as the last line, one JSON object (validation metrics of

@@ -3,26 +3,29 @@ predict`` without ``--checkpoint``).
 
 They are a run folder like any ``calib train`` output, cut down to ``config.json`` and the
 best checkpoint, under ``uavcal_jax/calib/weights/``. ``experiments/calib_default_weights.py``
-makes them (``--preset shipped``): simulated procedural flights at the demo's resolution, 2 s
-windows, the physical protocol and its ``total`` label (what a user subtracts), a small
-model with the motion tokens of the front end's visual rotations and its gyro head starting
-at their least-squares estimate. Train one on recordings of your own platform for its
-accelerometer (``uavcal calib train``): the simulator's accelerometer is not a real one.
+makes them (``--preset shipped``): simulated procedural flights at the demo's resolution, each
+with a real multirotor's airframe (rotor drag, a tilted thrust axis, the IMU's mounting tilt),
+2 s windows, the physical protocol and its ``total`` label (what a user subtracts), a small
+model with the motion tokens of the front end's visual rotations and its head starting at the
+metric closed form (``rotation_alignment``): the gyro's least squares against the camera's
+rotations, the accelerometer's visual-inertial alignment of the stereo VIO's poses over the
+20 s around each window (so predicting runs the VIO once per recording, its poses kept beside
+it), with the alignment's standard deviation as an input. Train one on recordings of your own
+platform for its accelerometer (``uavcal calib train``).
 
-What they are worth, measured (``python experiments/calib_default_weights.py --install``: 24
-flights of 20 s, 703 training and 185 held-out windows, best epoch 21 of 27, 20 min on 2
-cores shared with other work): per 2 s held-out window, gx gy gz 0.0035 0.0052 0.0015 rad/s,
-ax ay az 0.04 0.01 0.02 m/s^2, against 0.10 pooled for the mean offset (the weights before
-the uncertainty head: the same to 0.001). Their predicted sigma (``model.variance``) is a
-window's: on those held-out windows the z-scores' RMS is 0.9-1.6 per channel (1.22 pooled:
-a little overconfident). Over whole unseen flights (``experiments/calib_blind.py``: three 30 s
-flights along EuRoC trajectories, the median of the windows) the gyro is within 0.0005 rad/s
-RMS and the accelerometer 0.10 m/s^2 (no correction: 0.055 and 0.21); the window's sigma
-overstates the median's gyro error (z RMS 0.18) and understates the accelerometer's, a bias
-the procedural training flights do not show (z RMS 2.2). On the real V1_01 IMU the gyro is
-within 0.001 rad/s of the sensor's bias, the accelerometer up to 0.12 m/s^2 off (a sim-to-real
-gap). The VIO's own bias states (``calib predict``'s default method) do better on the
-accelerometer.
+What they are (issue 43): the run's learned correction is **switched off** (the head's
+weights zeroed, ``--closed-form-only``). Trained, it lowered the held-out procedural windows'
+error, but on unseen flights along real EuRoC trajectories (11 flights of 20 s from 40 s in,
+seed 11: ``experiments/calib_uncertainty.py``) it made both sensors worse: gyro 0.0009
+against 0.0006 rad/s, accelerometer 0.036 against 0.020 m/s^2 RMS per axis (0.12-0.13 off on
+two flights where the closed form was 0.04). What is learned and kept is the uncertainty
+head: each window's sigma, scaled by the measured ``common_scale`` of ``uncertainty.json``
+(the share the windows of one recording have in common: 0.16 gyro, 1.52 accelerometer).
+The weights before (the gyro closed form, the accelerometer learned from the IMU and frames
+alone) were 0.0006 rad/s and 0.093 m/s^2 off on the same flights. Made by::
+
+    python experiments/calib_default_weights.py --closed-form-only uavcal_jax/calib/weights/demo
+    python experiments/calib_uncertainty.py --methods transformer --write-run
 """
 
 from __future__ import annotations
