@@ -20,6 +20,7 @@ dominates each channel (measured: ``experiments/calib_blind.py``'s z-scores).
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Iterable
 
 import numpy as np
@@ -146,8 +147,6 @@ def estimate(sequence: Sequence, options: AutoOptions = AutoOptions(), *,  # noq
     Raises:
         DataError: every component failed or gave no sigma.
     """
-    import time
-
     check_sequence(sequence)
     used, report = [], {}
     for name in options.methods:
