@@ -181,8 +181,9 @@ def _table(pooled: dict, hybrid_rows: list[dict], args) -> str:
              "| --- | --- | --- | --- | --- |"]
     for method, s in pooled.items():
         axes = ", ".join(f"{c} {v:.4f}" for c, v in s["rmse"].items())
-        z = "" if s.get("gyro_z_rms") is None else (
-            f"; z-scores' RMS gyro {s['gyro_z_rms']:.2f}, accel {s['accel_z_rms']:.2f}")
+        z = "; ".join(f"z-scores' RMS {sensor} {s[f'{sensor}_z_rms']:.2f}"
+                      for sensor in ("gyro", "accel") if s.get(f"{sensor}_z_rms") is not None)
+        z = f"; {z}" if z else ""
         lines.append(f"| {method} | {_fmt(s['gyro_rmse'])} | {_fmt(s['accel_rmse'])} | "
                      f"{s['sign_f1']:.3f} | {axes}{z} |")
     lines += _auto_lines(pooled)
@@ -243,13 +244,15 @@ def main() -> None:
     hybrid_rows = []
     if args.hybrid and MICRO.is_dir():
         hybrid_rows = _score([_hybrid(args)], methods, extra, args)
-    table = _table(pooled, hybrid_rows, args)
-    (args.out / "table.md").write_text(table)
+    # the rows first: they took the time; the table is made from them
     result = {"flights": [str(f) for f in flights], "methods": methods, "rows": rows,
               "pooled": pooled, "hybrid": hybrid_rows,
+              "auto_against_best": auto_against_best(pooled),
               "settings": {k: (str(v) if isinstance(v, Path) else v)
                            for k, v in vars(args).items()}}
     (args.out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
+    table = _table(pooled, hybrid_rows, args)
+    (args.out / "table.md").write_text(table)
     print(table)
     write_docs(args, "calib_blind", table, anchor="no correction (the raw IMU's offset error)")
     print(json.dumps({"pooled": pooled, "hybrid": hybrid_rows}))
