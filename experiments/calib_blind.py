@@ -174,7 +174,7 @@ def _auto_lines(pooled: dict) -> list[str]:
 def _table(pooled: dict, hybrid_rows: list[dict], args) -> str:
     mount = ("" if args.imu_rotation is None else
              f"; IMU turned by {','.join(f'{v:g}' for v in args.imu_rotation)} deg")
-    lines = [f"## Simulated EuRoC-trajectory flights ({', '.join(args.flights)}; "
+    lines = [f"## Simulated flights along real trajectories ({', '.join(args.flights)}; "
              f"{args.duration:g} s from {args.start:g} s; physical-range offsets, seed "
              f"{args.seed}{mount}), total label", "",
              "| method | gyro RMSE (rad/s) | accel RMSE (m/s^2) | sign F1 | per axis |",
