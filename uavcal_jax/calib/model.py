@@ -64,6 +64,10 @@ Padded frames (``mask`` False) are never attended to by any token sequence after
 encoder, so they change nothing. The RGB batch norm keeps running statistics in the
 ``batch_stats`` collection (apply with ``mutable=["batch_stats"]`` when training); padded
 frames are excluded from its batch statistics.
+
+One module over 450 lines, one job: the network, its blocks and the closed forms its head
+starts from; the layers it shares with nothing else are here, the generic ones in
+:mod:`uavcal_jax.calib.layers`.
 """
 
 from __future__ import annotations

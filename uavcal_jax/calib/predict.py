@@ -210,20 +210,18 @@ def predict_on_sequence(run_dir: str | Path, sequence: Sequence, *, kind: str = 
     window = run.window
     sensor = run.injection.single_sensor
     where = sequence.root if sequence.root is not None else sequence.name
-    visual = None
-    if window.rotations == "visual":
-        if rotation_source is None:
-            raise DataError("window.rotations=visual needs the recording's visual rotations "
-                            "(predict_on_sequence's rotation_source)", where)
-        visual = rotation_source(sequence)
-    poses = None
-    if window.accel_start == "alignment":
-        if pose_source is None:
-            raise DataError("window.accel_start=alignment needs the recording's VIO poses "
-                            "(predict_on_sequence's pose_source)", where)
-        poses = pose_source(sequence)
-    ws = mask_black_frames(make_windows(sequence, window, visual_rotations=visual,
-                                        vio_poses=poses), where)
+    inputs = {}  # the motion inputs the window configuration asks for, from their sources
+    for needed, key, source, name, what in (
+            (window.rotations == "visual", "visual_rotations", rotation_source,
+             "rotation_source", "window.rotations=visual needs the recording's visual "
+             "rotations"),
+            (window.accel_start == "alignment", "vio_poses", pose_source, "pose_source",
+             "window.accel_start=alignment needs the recording's VIO poses")):
+        if needed:
+            if source is None:
+                raise DataError(f"{what} (predict_on_sequence's {name})", where)
+            inputs[key] = source(sequence)
+    ws = mask_black_frames(make_windows(sequence, window, **inputs), where)
     part = Windows(ws, np.arange(len(ws)), str(where))
     state, seeds = restore_run(run_dir, [part], kind=kind, run=run)
     pick = model_channels(run.model.imu_channels, sensor)

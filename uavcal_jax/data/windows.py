@@ -44,8 +44,9 @@ Motion inputs (issue 20; off by default, nothing changes then):
   frame starts a new segment, so intervals across a failed pair are invalid.
 
 One module over 450 lines, one job: cutting a recording into windows and the per-frame
-arrays they index (IMU, rotations, tilt labels); the interval inputs live in
-:mod:`uavcal_jax.data.window_motion`.
+and per-window arrays they index (IMU, rotations, tilt labels, the metric start); the
+interval inputs live in :mod:`uavcal_jax.data.window_motion`, the alignment behind the metric
+start in :mod:`uavcal_jax.data.window_alignment`.
 """
 
 from __future__ import annotations

@@ -178,7 +178,7 @@ def estimate(sequence: Sequence, options: AutoOptions = AutoOptions(), *,  # noq
     for name, w in zip(names, weights, strict=True):
         report[name]["weights"] = w.tolist()
     per_item = np.stack([np.where(np.isin(np.arange(6), est.channel_index),
-                                  _six(est), offset) for est in used])
+                                  est.offset, offset) for est in used])
     determined = np.isfinite(sigma)
     starts = [est.span_ns[0] for est in used if est.span_ns[0] is not None]
     ends = [est.span_ns[1] for est in used if est.span_ns[1] is not None]
@@ -188,12 +188,6 @@ def estimate(sequence: Sequence, options: AutoOptions = AutoOptions(), *,  # noq
         span_ns=(min(starts), max(ends)) if starts else (None, None), label="total",
         settings=options, info={"methods": report, "determined": determined.tolist()},
         sigma=sigma)
-
-
-def _six(est: OffsetEstimate) -> np.ndarray:
-    out = np.zeros(6)
-    out[est.channel_index] = np.asarray(est.median, np.float64)
-    return out
 
 
 METHOD = OffsetMethod(

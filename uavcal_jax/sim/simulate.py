@@ -57,6 +57,10 @@ field of view).
 
 Determinism. Everything random derives from ``SimConfig.seed``: the same configuration gives
 byte-identical files.
+
+One module over 450 lines, one job: the orchestration above, from a configuration to a
+written recording; each stage it calls (trajectory fit, IMU synthesis, rendering, writing)
+is a module of its own.
 """
 
 from __future__ import annotations

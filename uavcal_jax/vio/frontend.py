@@ -29,6 +29,10 @@ One job, one class: the tracker keeps the corners, their ids and ages between fr
 stages share that state, so they stay together (the checks on matches already live in
 :mod:`~uavcal_jax.vio.match_checks`, the statistics of a frame in
 :mod:`~uavcal_jax.vio.frontend_stats`).
+
+One module over 450 lines, one job: the front end's per-frame tracking (corners, flow both
+ways, stereo matching, outlier rejection) as one stateful tracker; its statistics live in
+:mod:`uavcal_jax.vio.frontend_stats`.
 """
 
 from __future__ import annotations
